@@ -1,0 +1,85 @@
+"""Command line: argument parsing only; the work happens in render.py."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .errors import PhotonmcError
+from .methods import PLANNED
+
+
+def _define(text: str):
+    if "=" not in text:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got '{text}'")
+    name, value = text.split("=", 1)
+    return name, value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="photonmc", description="Photon-mapping renderer with MCMC-guided photons.")
+    sub = p.add_subparsers(dest="command", required=True)
+    r = sub.add_parser("render", help="render a scene to EXR + PNG")
+    r.add_argument("scene", nargs="?", help="Mitsuba 3 XML scene (default: the bundled Cornell box)")
+    r.add_argument("--method", default="pt", help=f"one of {', '.join(PLANNED)} (default pt)")
+    budget = r.add_mutually_exclusive_group()
+    budget.add_argument("--time", type=float, help="wall-clock budget in seconds")
+    budget.add_argument("--iterations", type=int, help="number of progressive iterations")
+    r.add_argument("--out", default="render.exr", help="output .exr (also writes .png) or .png")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--arch", default="cpu", choices=["cpu", "cuda", "vulkan"])
+    r.add_argument("--threads", type=int, help="CPU threads (default: all cores)")
+    r.add_argument("--max-depth", type=int, help="override the scene's max_depth (Mitsuba meaning)")
+    r.add_argument("--stats", metavar="PATH.json", help="write render statistics as JSON")
+    r.add_argument("--quiet", action="store_true", help="no progress output")
+    r.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE",
+                   help="set a scene parameter ($NAME), overriding its <default>")
+    return p
+
+
+def cmd_render(args) -> int:
+    from . import imageio
+    from .render import Budget, prepare, run
+
+    out = imageio.check_output_path(args.out)
+    if args.stats and not Path(args.stats).resolve().parent.is_dir():
+        raise PhotonmcError(f"directory for --stats '{args.stats}' does not exist")
+    budget = Budget(time=args.time, iterations=args.iterations)
+    prepared = prepare(args.scene, method=args.method, seed=args.seed, max_depth=args.max_depth,
+                       arch=args.arch, threads=args.threads, params=dict(args.defines))
+    for w in prepared.scene.warnings:
+        print(f"photonmc: warning: {w}", file=sys.stderr)
+    result = run(prepared, budget, quiet=args.quiet)
+    meta = {"method": args.method, "seed": args.seed, "iterations": result.stats["iterations"],
+            "scene": prepared.scene.path}
+    written = imageio.write_image(out, result.image, meta)
+    stats = result.stats
+    if stats.get("nonfinite_samples_dropped") or stats.get("nonfinite_pixels_zeroed"):
+        print(f"photonmc: warning: {stats.get('nonfinite_samples_dropped', 0)} NaN/Inf samples dropped, "
+              f"{stats['nonfinite_pixels_zeroed']} non-finite pixels set to 0", file=sys.stderr)
+    if args.stats:
+        Path(args.stats).write_text(json.dumps(stats, indent=2) + "\n")
+    if not args.quiet:
+        state = "interrupted after" if result.interrupted else "finished"
+        print(f"photonmc: {state} {stats['iterations']} iterations in {stats['wall_seconds']['render']:.1f} s; "
+              f"wrote {', '.join(str(p) for p in written)}", file=sys.stderr)
+    return 130 if result.interrupted else 0
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "render":
+            return cmd_render(args)
+    except PhotonmcError as e:
+        print(f"photonmc: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("photonmc: aborted", file=sys.stderr)
+        return 130
+    return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

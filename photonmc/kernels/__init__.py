@@ -1,0 +1,1 @@
+"""Taichi building blocks (@ti.func) shared by every method."""

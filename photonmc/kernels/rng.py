@@ -1,0 +1,29 @@
+"""Counter-based random numbers kept in registers.
+
+ti.random() does not scale across CPU threads and cannot be replayed; instead each work
+item hashes (seed, stream, index) into a 32-bit state and steps a PCG-RXS-M-XS generator.
+"""
+import taichi as ti
+
+
+@ti.func
+def hash_u32(x: ti.u32) -> ti.u32:
+    """PCG output permutation used as an integer hash (Jarzynski & Olano 2020)."""
+    state = x * ti.u32(747796405) + ti.u32(2891336453)
+    word = ((state >> ((state >> 28) + ti.u32(4))) ^ state) * ti.u32(277803737)
+    return (word >> 22) ^ word
+
+
+@ti.func
+def seed(a: ti.u32, b: ti.u32, c: ti.u32) -> ti.u32:
+    """Independent stream for the triple (a, b, c), e.g. (seed, pixel, iteration)."""
+    return hash_u32(hash_u32(hash_u32(a) ^ b) + c * ti.u32(0x9E3779B9))
+
+
+@ti.func
+def next_float(state: ti.template()) -> ti.f32:
+    """Uniform float in [0, 1); advances `state` in place."""
+    state = state * ti.u32(747796405) + ti.u32(2891336453)
+    word = ((state >> ((state >> 28) + ti.u32(4))) ^ state) * ti.u32(277803737)
+    x = (word >> 22) ^ word
+    return ti.cast(x >> 8, ti.f32) * (1.0 / 16777216.0)

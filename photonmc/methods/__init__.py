@@ -1,0 +1,25 @@
+"""Rendering methods by CLI name."""
+from __future__ import annotations
+
+from ..errors import SettingsError
+from .base import Method, MethodSettings
+
+# All methods photonmc is designed to offer; those not yet built are refused by name.
+PLANNED = ("pt", "sppm", "visibility", "spatial-tf", "vcm", "mbe")
+
+
+def method_class(name: str):
+    if name == "pt":
+        from .pt import PathTracer
+        return PathTracer
+    if name in PLANNED:
+        raise SettingsError(f"method '{name}' is not implemented yet in this version of photonmc "
+                            f"(available: pt)")
+    raise SettingsError(f"unknown method '{name}' (choose from {', '.join(PLANNED)})")
+
+
+def create(name: str, dscene, settings: MethodSettings) -> Method:
+    return method_class(name)(dscene, settings)
+
+
+__all__ = ["Method", "MethodSettings", "create", "method_class", "PLANNED"]

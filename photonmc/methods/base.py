@@ -1,0 +1,54 @@
+"""The interface every rendering method implements, so that the progressive loop, the
+preview and the convergence tools treat them alike."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import SettingsError
+
+
+@dataclass
+class MethodSettings:
+    seed: int = 0
+    max_depth: int | None = None          # None: the scene's integrator max_depth
+    options: dict = field(default_factory=dict)   # method-specific (e.g. photons, alpha)
+
+    def __post_init__(self):
+        if not 0 <= self.seed < 2**32:
+            raise SettingsError(f"--seed must be in [0, 2^32), got {self.seed}")
+        if self.max_depth is not None and not (self.max_depth == -1 or 1 <= self.max_depth <= 1 << 20):
+            raise SettingsError(f"--max-depth must be -1 (unbounded) or between 1 and 2^20, got {self.max_depth}")
+
+
+class Method:
+    """One progressive estimator. Subclasses implement _iterate(), image(), method_stats()."""
+    name = "?"
+    work_unit = "paths"              # what work_done counts, for rates in progress and stats
+    default_iterations = 64
+
+    def __init__(self, dscene, settings: MethodSettings):
+        self.dscene = dscene
+        self.settings = settings
+        self.seed_u32 = settings.seed & 0xFFFFFFFF
+        self.iterations = 0
+        self.work_done = 0
+
+    def iterate(self) -> None:
+        self._iterate()
+        self.iterations += 1
+
+    def _iterate(self) -> None:
+        raise NotImplementedError
+
+    def image(self) -> np.ndarray:
+        """Current estimate, (H, W, 3) float64 linear radiance."""
+        raise NotImplementedError
+
+    def method_stats(self) -> dict:
+        return {}
+
+    def stats(self) -> dict:
+        return {"method": self.name, "iterations": self.iterations, self.work_unit: self.work_done,
+                **self.method_stats()}

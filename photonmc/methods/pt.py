@@ -1,0 +1,125 @@
+"""Unidirectional path tracing with next-event estimation and MIS: the reference method.
+
+Each iteration traces one path per pixel. Emission found by BSDF sampling and by emitter
+sampling is combined with the power heuristic (Veach 1997, eq. 9.13); delta bounces
+(mirror, glass) see emitters with weight 1. Depth follows Mitsuba's `max_depth`: a path
+of k segments contributes iff k <= max_depth. Russian roulette from `rr_depth` on divides
+by the survival probability, so it changes noise, not the expectation.
+"""
+
+import taichi as ti
+
+from ..film import Film
+from ..kernels import rng
+from ..kernels.device_scene import MISS, DeviceScene
+from ..kernels.sampling import onb, power_heuristic, to_local, to_world, vec3
+from .base import Method, MethodSettings
+
+RR_DEPTH = 5
+
+
+@ti.data_oriented
+class PathTracer(Method):
+    name = "pt"
+    work_unit = "samples"
+
+    def __init__(self, dscene: DeviceScene, settings: MethodSettings):
+        super().__init__(dscene, settings)
+        self.film = Film(dscene.width, dscene.height)
+        self.max_depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
+
+    def _iterate(self):
+        self._trace_pixels(self.seed_u32, self.iterations, self.max_depth)
+        self.film.samples_per_pixel += 1
+        self.work_done += self.dscene.width * self.dscene.height
+
+    def image(self):
+        return self.film.mean()
+
+    def standard_error(self):
+        return self.film.standard_error()
+
+    def method_stats(self) -> dict:
+        return {"samples_per_pixel": self.film.samples_per_pixel, "nonfinite_samples_dropped": self.film.dropped()}
+
+    @ti.kernel
+    def _trace_pixels(self, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32):
+        for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
+            state = rng.seed(seed, ti.u32(y * self.dscene.width + x), iteration)
+            o, d = self.dscene.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
+            self.film.add(y, x, self.radiance(o, d, state, max_depth))
+
+    @ti.func
+    def radiance(self, o, d, state: ti.template(), max_depth: ti.i32):
+        sc = self.dscene
+        L = vec3(0.0)
+        beta = vec3(1.0)
+        prev_pdf_w = 0.0
+        prev_delta = 1          # the camera "bounce": emitters seen directly get weight 1
+        eta_scale = 1.0         # product of relative IORs crossed, undone for roulette
+        depth = 0               # segments traced so far
+        while True:
+            hit = sc.trace(o, d, ti.math.inf, False)
+            if hit.kind == MISS:
+                break
+            depth += 1
+            s = sc.surface(o, d, hit)
+            wo = -d
+            le = sc.emitted(s.emitter, s.ns, wo)
+            if le.max() > 0.0:
+                w = 1.0
+                if not prev_delta:
+                    cos_l = ti.abs(s.ns.dot(wo))
+                    pdf_light_w = s.light_pdf_a * hit.t * hit.t / ti.max(cos_l, 1e-12)
+                    w = power_heuristic(prev_pdf_w, pdf_light_w)
+                L += beta * le * w
+            if depth >= max_depth:
+                break
+            b, n = sc.side_bsdf(s.material, s.ns, wo)
+            if b < 0:
+                break           # back side of a one-sided BSDF: black
+            t1, t2 = onb(n)
+            wo_l = to_local(wo, t1, t2, n)
+            if not sc.bsdf_is_delta(b):
+                L += beta * self.next_event(s, b, wo_l, n, t1, t2, state)
+            bs = sc.bsdf_sample(b, wo_l, rng.next_float(state), rng.next_float(state),
+                                rng.next_float(state), True)
+            if not bs.ok:
+                break
+            d = to_world(bs.wi, t1, t2, n)
+            beta *= bs.weight
+            eta_scale *= bs.eta
+            prev_pdf_w = bs.pdf_w
+            prev_delta = bs.delta
+            if beta.max() <= 0.0:
+                break
+            if depth >= RR_DEPTH:
+                q = ti.min(beta.max() * eta_scale * eta_scale, 0.95)
+                if rng.next_float(state) >= q:
+                    break
+                beta /= q
+            o = sc.spawn(s.p, s.ng, d)
+        return L
+
+    @ti.func
+    def next_event(self, s, b: ti.i32, wo_l, n, t1, t2, state: ti.template()):
+        """Emitter sampling at a non-delta vertex, MIS-weighted against BSDF sampling."""
+        sc = self.dscene
+        contrib = vec3(0.0)
+        ls = sc.sample_light(rng.next_float(state), rng.next_float(state), rng.next_float(state))
+        to_l = ls.p - s.p
+        dist2 = to_l.dot(to_l)
+        if dist2 > 0.0:
+            dist = ti.sqrt(dist2)
+            wi = to_l / dist
+            cos_l = -wi.dot(ls.n)
+            wi_l = to_local(wi, t1, t2, n)
+            if cos_l > 0.0:
+                f = sc.bsdf_eval(b, wo_l, wi_l)
+                if f.max() > 0.0:
+                    o = sc.spawn(s.p, s.ng, wi)
+                    if not sc.occluded(o, wi, dist * (1.0 - 1e-4) - 2.0 * sc.ray_eps):
+                        pdf_light_w = ls.pdf_a * dist2 / cos_l
+                        w = power_heuristic(pdf_light_w, sc.bsdf_pdf(b, wo_l, wi_l))
+                        contrib = f * ti.abs(wi_l.z) * ls.radiance * (w / pdf_light_w)
+        return contrib

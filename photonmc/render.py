@@ -1,0 +1,202 @@
+"""The progressive loop shared by the CLI, the Python API, the preview and the tools.
+
+prepare() loads the scene, uploads it and builds a method; progressive() runs iterations
+until the budget is spent or a stop is requested, yielding after each one; run() adds
+the progress bar, Ctrl-C handling and the final statistics. An interrupted render stops
+after the iteration in flight, so the image it keeps is a whole number of iterations.
+"""
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import runtime
+from .errors import SettingsError
+from .methods import MethodSettings, create, method_class
+from .scene import Scene, load_scene
+
+
+@dataclass
+class Budget:
+    time: float | None = None          # wall seconds; stop after the first iteration past it
+    iterations: int | None = None
+
+    def __post_init__(self):
+        if self.time is not None and not (self.time > 0 and math.isfinite(self.time)):
+            raise SettingsError(f"--time must be a positive number of seconds, got {self.time}")
+        if self.iterations is not None and self.iterations < 1:
+            raise SettingsError(f"--iterations must be at least 1, got {self.iterations}")
+
+    def done(self, iterations: int, elapsed: float) -> bool:
+        if self.iterations is not None and iterations >= self.iterations:
+            return True
+        return self.time is not None and elapsed >= self.time
+
+
+@dataclass
+class Prepared:
+    scene: Scene
+    dscene: object
+    method: object
+    timings: dict = field(default_factory=dict)
+
+
+def default_scene_path() -> Path:
+    """The bundled Cornell box, installed as package data or found in the source tree."""
+    try:
+        from importlib.resources import files
+        p = Path(str(files("photonmc.scenes") / "cornell-box" / "scene.xml"))
+        if p.is_file():
+            return p
+    except (ModuleNotFoundError, TypeError):
+        pass
+    return Path(__file__).resolve().parent.parent / "scenes" / "cornell-box" / "scene.xml"
+
+
+def prepare(scene, method: str = "pt", seed: int = 0, max_depth: int | None = None,
+            arch: str = "cpu", threads: int | None = None, options: dict | None = None,
+            params: dict | None = None) -> Prepared:
+    """Load (if given a path), initialise Taichi, upload the scene and build the method."""
+    method_class(method)                       # reject unknown methods before any work
+    settings = MethodSettings(seed=seed, max_depth=max_depth, options=options or {})
+    t0 = time.perf_counter()
+    if not isinstance(scene, Scene):
+        scene = load_scene(default_scene_path() if scene is None else scene, params)
+    runtime.init(arch, threads)
+    from .kernels.device_scene import DeviceScene
+    dscene = DeviceScene(scene)
+    m = create(method, dscene, settings)
+    return Prepared(scene, dscene, m, {"load_s": time.perf_counter() - t0})
+
+
+class StopRequest:
+    """Set by Ctrl-C / SIGTERM: the loop finishes the iteration in flight and stops.
+    A second Ctrl-C aborts at once."""
+
+    def __init__(self):
+        self.requested = False
+
+    @contextmanager
+    def installed(self):
+        if threading.current_thread() is not threading.main_thread():
+            yield self
+            return
+
+        def handler(signum, frame):
+            if self.requested and signum == signal.SIGINT:
+                raise KeyboardInterrupt
+            self.requested = True
+
+        old_int = signal.signal(signal.SIGINT, handler)
+        old_term = signal.signal(signal.SIGTERM, handler)
+        try:
+            yield self
+        finally:
+            signal.signal(signal.SIGINT, old_int)
+            signal.signal(signal.SIGTERM, old_term)
+
+
+def progressive(method, budget: Budget, stop: StopRequest | None = None):
+    """Run iterations until the budget is spent; yields (iteration, elapsed, iteration_time)."""
+    start = time.perf_counter()
+    while True:
+        t = time.perf_counter()
+        method.iterate()
+        now = time.perf_counter()
+        yield method.iterations, now - start, now - t
+        if budget.done(method.iterations, now - start) or (stop is not None and stop.requested):
+            return
+
+
+class ProgressBar:
+    """One status line on stderr, only when it is a terminal."""
+
+    def __init__(self, method, budget: Budget, enabled: bool):
+        self.method, self.budget = method, budget
+        self.enabled = enabled and sys.stderr.isatty()
+        self.last = 0.0
+
+    def update(self, iteration, elapsed, force=False):
+        if not self.enabled or (not force and time.perf_counter() - self.last < 0.2):
+            return
+        self.last = time.perf_counter()
+        rate = self.method.work_done / elapsed if elapsed > 0 else 0.0
+        eta = ""
+        if self.budget.iterations is not None and iteration > 0:
+            eta = f"  ETA {elapsed / iteration * (self.budget.iterations - iteration):.1f} s"
+        elif self.budget.time is not None:
+            eta = f"  ETA {max(self.budget.time - elapsed, 0):.1f} s"
+        total = f"/{self.budget.iterations}" if self.budget.iterations else ""
+        sys.stderr.write(f"\r[{self.method.name}] iteration {iteration}{total}  {elapsed:.1f} s  "
+                         f"{_si(rate)} {self.method.work_unit}/s{eta}   ")
+        sys.stderr.flush()
+
+    def close(self):
+        if self.enabled:
+            sys.stderr.write("\n")
+
+
+def _si(x: float) -> str:
+    for unit, scale in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
+        if x >= scale:
+            return f"{x / scale:.2f} {unit}"
+    return f"{x:.0f}"
+
+
+@dataclass
+class RunResult:
+    image: np.ndarray          # (H,W,3) float32 linear
+    stats: dict
+    interrupted: bool
+
+
+def run(prepared: Prepared, budget: Budget, quiet: bool = False, on_iteration=None) -> RunResult:
+    """The whole progressive render with progress, interrupt handling and statistics."""
+    m = prepared.method
+    if budget.time is None and budget.iterations is None:
+        budget = Budget(iterations=m.default_iterations)
+    stop = StopRequest()
+    bar = ProgressBar(m, budget, enabled=not quiet)
+    iteration_times = []
+    elapsed = 0.0
+    with stop.installed():
+        for iteration, elapsed, dt in progressive(m, budget, stop):
+            iteration_times.append(dt)
+            bar.update(iteration, elapsed)
+            if on_iteration is not None:
+                on_iteration(m, iteration, elapsed)
+    bar.update(m.iterations, elapsed, force=True)
+    bar.close()
+    image = m.image()
+    nonfinite_pixels = int((~np.isfinite(image)).any(axis=2).sum())
+    if nonfinite_pixels:       # never let NaN/Inf reach the film silently
+        image = np.where(np.isfinite(image), image, 0.0)
+    steady = iteration_times[1:]
+    stats = {
+        **m.stats(),
+        "scene": str(prepared.scene.path),
+        "seed": m.settings.seed,
+        "resolution": [prepared.dscene.width, prepared.dscene.height],
+        "max_depth": prepared.scene.max_depth if m.settings.max_depth is None else m.settings.max_depth,
+        "wall_seconds": {
+            "load": prepared.timings.get("load_s", 0.0),
+            "first_iteration_incl_compile": iteration_times[0] if iteration_times else 0.0,
+            "steady_per_iteration": float(np.mean(steady)) if steady else None,
+            "render": elapsed,
+        },
+        "interrupted": stop.requested,
+        "nonfinite_pixels_zeroed": nonfinite_pixels,
+        "threads": runtime._current[1] if runtime._current else None,
+        "arch": runtime._current[0] if runtime._current else None,
+    }
+    if steady:
+        stats[f"{m.work_unit}_per_second"] = m.work_done / len(iteration_times) / float(np.mean(steady))
+    return RunResult(image.astype(np.float32), stats, stop.requested)

@@ -1,0 +1,46 @@
+"""Taichi initialisation, once per process.
+
+A second ti.init() would throw away every compiled kernel, so all callers (CLI, API,
+tests) go through init(); asking again with the same settings is a no-op.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")   # keep Taichi's banner out of user output
+
+import taichi as ti  # noqa: E402
+
+from .errors import SettingsError  # noqa: E402
+
+_current: tuple | None = None
+ARCHES = {"cpu": "cpu", "cuda": "cuda", "vulkan": "vulkan"}
+
+
+def init(arch: str = "cpu", threads: int | None = None, debug: bool = False) -> None:
+    global _current
+    key = (arch, threads, debug)
+    if _current is not None:
+        if _current != key:
+            raise SettingsError(f"Taichi is already initialised with arch/threads/debug {_current}; "
+                                f"cannot switch to {key} in the same process")
+        return
+    if arch not in ARCHES:
+        raise SettingsError(f"unknown --arch '{arch}' (choose cpu, cuda or vulkan)")
+    if threads is not None and threads < 1:
+        raise SettingsError(f"--threads must be at least 1, got {threads}")
+    kwargs = dict(arch=getattr(ti, ARCHES[arch]), default_fp=ti.f32, default_ip=ti.i32,
+                  log_level=ti.WARN, debug=debug, offline_cache=True)
+    if threads is not None and arch == "cpu":
+        kwargs["cpu_max_num_threads"] = threads
+    with contextlib.redirect_stdout(io.StringIO()):   # ti.init prints "Starting on arch=..."
+        ti.init(**kwargs)
+    if arch != "cpu" and ti.lang.impl.current_cfg().arch == ti.cpu:
+        raise SettingsError(f"--arch {arch} is not available on this machine")
+    _current = key
+
+
+def is_initialised() -> bool:
+    return _current is not None
