@@ -11,7 +11,7 @@ import taichi as ti
 
 from ..film import Film
 from ..kernels import rng
-from ..kernels.device_scene import MISS, DeviceScene
+from ..kernels.device_scene import MISS, UNBOUNDED_DEPTH, DeviceScene
 from ..kernels.sampling import onb, power_heuristic, to_local, to_world, vec3
 from .base import Method, MethodSettings
 
@@ -26,7 +26,8 @@ class PathTracer(Method):
     def __init__(self, dscene: DeviceScene, settings: MethodSettings):
         super().__init__(dscene, settings)
         self.film = Film(dscene.width, dscene.height)
-        self.max_depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
+        depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
+        self.max_depth = UNBOUNDED_DEPTH if depth == -1 else depth
 
     def _iterate(self):
         self._trace_pixels(self.seed_u32, self.iterations, self.max_depth)
@@ -58,6 +59,7 @@ class PathTracer(Method):
         prev_delta = 1          # the camera "bounce": emitters seen directly get weight 1
         eta_scale = 1.0         # product of relative IORs crossed, undone for roulette
         depth = 0               # segments traced so far
+        prev_p = o              # the previous vertex itself, not the offset ray origin
         while True:
             hit = sc.trace(o, d, ti.math.inf, False)
             if hit.kind == MISS:
@@ -69,8 +71,11 @@ class PathTracer(Method):
             if le.max() > 0.0:
                 w = 1.0
                 if not prev_delta:
+                    # Distance from the vertex, not from the offset origin: otherwise the
+                    # two MIS weights of a path do not sum to one (a bias of order eps/dist).
                     cos_l = ti.abs(s.ns.dot(wo))
-                    pdf_light_w = s.light_pdf_a * hit.t * hit.t / ti.max(cos_l, 1e-12)
+                    dist2 = (s.p - prev_p).norm_sqr()
+                    pdf_light_w = s.light_pdf_a * dist2 / ti.max(cos_l, 1e-12)
                     w = power_heuristic(prev_pdf_w, pdf_light_w)
                 L += beta * le * w
             if depth >= max_depth:
@@ -99,6 +104,7 @@ class PathTracer(Method):
                     break
                 beta /= q
             o = sc.spawn(s.p, s.ng, d)
+            prev_p = s.p
         return L
 
     @ti.func

@@ -97,7 +97,7 @@ class _Builder:
         self.spheres = {"c": [], "r": [], "flip": [], "mat": [], "em": []}
         self.camera = None
         self.max_depth = -1
-        self.warnings: list[str] = []
+        self.warnings: list[str] = reader.warnings
 
     def err(self, line, msg):
         return SceneError(f"{self.file}:{line}: {msg}")
@@ -188,7 +188,7 @@ class _Builder:
         if not 0 < fov < 180:
             raise self.err(p.line_of("fov"), f"fov must be between 0 and 180 degrees, got {fov}")
         axis = p.value("fov_axis", ("string",), "x")
-        to_world = p.value("to_world", ("transform",), np.eye(4))
+        to_world = p.value("to_world", ("transform",), tf.Transform()).m
         if abs(np.linalg.det(to_world[:3, :3])) < 1e-12:
             raise self.err(p.line_of("to_world"), "sensor to_world is singular")
         p.number("near_clip", 0.01)     # clipping planes do not change what a closed scene shows
@@ -343,10 +343,15 @@ class _Builder:
                 emitter = self._area_emitter(child)
             else:
                 raise self.err(child.line, f"unsupported <{child.tag} type=\"{child.type}\"> inside <shape>")
-        if material is None:   # Mitsuba's default: diffuse with reflectance 0.5
-            material = self._material(Plugin("bsdf", "diffuse", None, node.line, self.file))
+        if material is None:
+            # Mitsuba's default BSDF is diffuse 0.5, but black (reflectance 0) on emitters.
+            default = Plugin("bsdf", "diffuse", None, node.line, self.file)
+            if emitter is not None:
+                default.props["reflectance"] = Property("float", 0.0, node.line)
+            material = self._material(default)
         p = _Params(node, self.file)
-        to_world = p.value("to_world", ("transform",), np.eye(4))
+        xform = p.value("to_world", ("transform",), tf.Transform())
+        to_world = xform.m
         flip = p.value("flip_normals", ("boolean",), False)
         if node.type == "sphere":
             self._sphere(node, p, to_world, flip, material, emitter)
@@ -370,7 +375,7 @@ class _Builder:
         v = tf.apply_points(to_world, v)
         tri = v[f]
         if n is not None:
-            n = tf.apply_normals(to_world, n)
+            n = xform.apply_normals(n)
         face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         area2 = np.linalg.norm(face_n, axis=1)
         scale = max(float(np.abs(v).max()), 1e-30)

@@ -59,11 +59,9 @@ def load_mesh_file(path: Path, kind: str, where: str):
     offset = 0
     for part in parts:
         v = np.asarray(part.get("vertices", np.zeros((0, 3))), float).reshape(-1, 3)
-        f = np.asarray(part.get("faces", np.zeros((0, 3))), np.int64)
+        f = _triangulate(part.get("faces", np.zeros((0, 3))), where, path)
         if f.size == 0:
             continue
-        if f.ndim != 2 or f.shape[1] != 3:
-            raise SceneError(f"{where}: mesh '{path}' has non-triangular faces trimesh could not split")
         n = part.get("vertex_normals")
         n = None if n is None else np.asarray(n, float).reshape(-1, 3)
         if n is not None and n.shape != v.shape:
@@ -80,6 +78,26 @@ def load_mesh_file(path: Path, kind: str, where: str):
         raise SceneError(f"{where}: mesh '{path}' has face indices outside its vertex list")
     n = None if any(x is None for x in normals) else np.concatenate(normals)
     return v, f, n
+
+
+def _triangulate(faces, where, path) -> np.ndarray:
+    """Polygons (uniform array or ragged list) to triangles as fans (0, i, i+1)."""
+    try:
+        arr = np.asarray(faces, np.int64)
+    except (ValueError, TypeError):
+        arr = None
+    if arr is not None and arr.ndim == 2:
+        polys = [arr]
+    else:
+        polys = [np.asarray(p, np.int64)[None] for p in faces]
+    tris = []
+    for block in polys:
+        k = block.shape[1]
+        if k < 3:
+            raise SceneError(f"{where}: mesh '{path}' has a face with fewer than 3 vertices")
+        for i in range(1, k - 1):
+            tris.append(block[:, [0, i, i + 1]])
+    return np.concatenate(tris) if tris else np.zeros((0, 3), np.int64)
 
 
 def angle_weighted_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:

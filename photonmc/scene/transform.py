@@ -1,6 +1,8 @@
 """4x4 affine transforms with Mitsuba 3's conventions (column vectors, angles in degrees)."""
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 
@@ -15,9 +17,11 @@ def scale(v) -> np.ndarray:
 
 
 def rotate(axis, angle_deg: float) -> np.ndarray:
-    """Rotation about `axis` by `angle_deg`, counter-clockwise looking down the axis (Rodrigues)."""
+    """Rodrigues' rotation about `axis` by `angle_deg`, counter-clockwise looking down the axis.
+
+    Like Mitsuba 3, the axis is used as given: an axis that is not unit length gives a
+    matrix that also scales and shears (checked against mitsuba 3.9's Transform4f.rotate)."""
     a = np.asarray(axis, float)
-    a = a / np.linalg.norm(a)
     t = np.radians(angle_deg)
     c, s = np.cos(t), np.sin(t)
     k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
@@ -65,12 +69,29 @@ def look_at(origin, target, up) -> np.ndarray:
     return m
 
 
+@dataclass
+class Transform:
+    """A to_world transform: the 4x4 point matrix and the 3x3 matrix applied to normals.
+
+    The normal matrix is composed step by step as Mitsuba 3 does: each step contributes its
+    inverse transpose, except <rotate>, which contributes its own matrix (exact for a unit
+    axis; with a non-unit axis Mitsuba's shading normals then differ from the geometric
+    ones, and so do ours, so that the same file gives the same image)."""
+    m: np.ndarray = field(default_factory=lambda: np.eye(4))
+    n: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    def then(self, step: np.ndarray, normal_step: np.ndarray | None = None) -> "Transform":
+        if normal_step is None:
+            normal_step = np.linalg.inv(step[:3, :3]).T if abs(np.linalg.det(step[:3, :3])) > 0 else np.eye(3)
+        return Transform(step @ self.m, normal_step @ self.n)
+
+    def apply_normals(self, nrm: np.ndarray) -> np.ndarray:
+        out = nrm @ self.n.T
+        length = np.linalg.norm(out, axis=-1, keepdims=True)
+        return out / np.where(length > 0, length, 1.0)
+
+
 def apply_points(m: np.ndarray, p: np.ndarray) -> np.ndarray:
     return p @ m[:3, :3].T + m[:3, 3]
 
 
-def apply_normals(m: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Normals transform with the inverse transpose; result normalised."""
-    nt = n @ np.linalg.inv(m[:3, :3])
-    length = np.linalg.norm(nt, axis=-1, keepdims=True)
-    return nt / np.where(length > 0, length, 1.0)

@@ -96,6 +96,7 @@ class SceneXmlReader:
         self.path = Path(path)
         self.params = {k: str(v) for k, v in (params or {}).items()}
         self.ids: dict[str, Plugin] = {}
+        self.warnings: list[str] = []
 
     def err(self, line: int, msg: str) -> SceneError:
         return SceneError(f"{self.path}:{line}: {msg}")
@@ -205,13 +206,15 @@ class SceneXmlReader:
             return np.array(v * 3)
         raise self.err(el.line, f"unsupported property <{kind}>")
 
-    def _transform(self, el: XmlElement) -> np.ndarray:
-        m = np.eye(4)
+    def _transform(self, el: XmlElement) -> tf.Transform:
+        t = tf.Transform()
         for step in el.children:
-            m = self._transform_step(step) @ m   # document order: later steps apply last
-        if not np.all(np.isfinite(m)):
+            matrix = self._transform_step(step)
+            # document order: later steps apply last; see Transform for the normal matrix
+            t = t.then(matrix, matrix[:3, :3] if step.tag == "rotate" else None)
+        if not np.all(np.isfinite(t.m)):
             raise self.err(el.line, "transform is not finite")
-        return m
+        return t
 
     def _vec_attrs(self, el, default):
         if "value" in el.attrs:
@@ -233,6 +236,10 @@ class SceneXmlReader:
                 axis = self._vec_attrs(el, 0.0)
             if np.linalg.norm(axis) == 0:
                 raise self.err(el.line, "<rotate> axis is zero")
+            if abs(np.linalg.norm(axis) - 1) > 1e-6:
+                self.warnings.append(f"{self.path}:{el.line}: <rotate> axis {axis.tolist()} is not unit length; "
+                                     "as in Mitsuba it is used as given, which also scales and shears the shape "
+                                     "while normals are turned as by a pure rotation")
             return tf.rotate(axis, angle)
         if el.tag == "matrix":
             return tf.matrix(self._floats(el, self._attr(el, "value"), (9, 16)))

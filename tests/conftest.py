@@ -1,0 +1,41 @@
+"""Shared fixtures. Taichi is initialised once per test session: a second ti.init()
+would discard every compiled kernel."""
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from photonmc import runtime
+
+REPO = Path(__file__).resolve().parent.parent
+SCENES = REPO / "scenes"
+REFS = Path(__file__).resolve().parent / "refs"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def taichi_cpu():
+    runtime.init("cpu")
+
+
+def camera_xml(res=16, fov=60.0, origin="0,0,0", target="0,0,-1", up="0,1,0", extra=""):
+    return f"""
+    <sensor type="perspective">
+        <float name="fov" value="{fov}"/>
+        <transform name="to_world"><lookat origin="{origin}" target="{target}" up="{up}"/></transform>
+        <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/>
+            <rfilter type="box"/></film>
+        {extra}
+    </sensor>"""
+
+
+@pytest.fixture
+def write_scene(tmp_path):
+    """Write an XML scene (body inside <scene>) plus optional extra files; returns its path."""
+    def write(body: str, files: dict | None = None, name="scene.xml"):
+        for fname, content in (files or {}).items():
+            p = tmp_path / fname
+            p.write_bytes(content if isinstance(content, bytes) else content.encode())
+        path = tmp_path / name
+        path.write_text(f'<scene version="3.0.0">\n{textwrap.dedent(body)}\n</scene>\n')
+        return path
+    return write
