@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
 from .errors import PhotonmcError
@@ -32,6 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--threads", type=int, help="CPU threads (default: all cores)")
     r.add_argument("--max-depth", type=int, help="override the scene's max_depth (Mitsuba meaning)")
     r.add_argument("--stats", metavar="PATH.json", help="write render statistics as JSON")
+    r.add_argument("--checkpoint", type=float, default=60.0, metavar="SECONDS",
+                   help="also write the image every SECONDS while rendering (0: only at the end; default 60)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
     r.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE",
                    help="set a scene parameter ($NAME), overriding its <default>")
@@ -40,20 +43,30 @@ def build_parser() -> argparse.ArgumentParser:
 
 def cmd_render(args) -> int:
     from . import imageio
-    from .render import Budget, prepare, run
+    from .render import Budget, prepare, run, safe_image
 
     out = imageio.check_output_path(args.out)
     if args.stats and not Path(args.stats).resolve().parent.is_dir():
         raise PhotonmcError(f"directory for --stats '{args.stats}' does not exist")
+    if not (args.checkpoint >= 0):
+        raise PhotonmcError(f"--checkpoint must be >= 0 seconds, got {args.checkpoint}")
     budget = Budget(time=args.time, iterations=args.iterations)
     prepared = prepare(args.scene, method=args.method, seed=args.seed, max_depth=args.max_depth,
                        arch=args.arch, threads=args.threads, params=dict(args.defines))
     for w in prepared.scene.warnings:
         print(f"photonmc: warning: {w}", file=sys.stderr)
-    result = run(prepared, budget, quiet=args.quiet)
-    meta = {"method": args.method, "seed": args.seed, "iterations": result.stats["iterations"],
-            "scene": prepared.scene.path}
-    written = imageio.write_image(out, result.image, meta)
+    def metadata(iterations):
+        return {"method": args.method, "seed": args.seed, "iterations": iterations, "scene": prepared.scene.path}
+
+    last_write = [time.perf_counter()]
+
+    def checkpoint(method, iteration, elapsed):
+        if args.checkpoint > 0 and time.perf_counter() - last_write[0] >= args.checkpoint:
+            imageio.write_image(out, safe_image(method.image()), metadata(iteration))
+            last_write[0] = time.perf_counter()
+
+    result = run(prepared, budget, quiet=args.quiet, on_iteration=checkpoint)
+    written = imageio.write_image(out, result.image, metadata(result.stats["iterations"]))
     stats = result.stats
     if stats.get("nonfinite_samples_dropped") or stats.get("nonfinite_pixels_zeroed"):
         print(f"photonmc: warning: {stats.get('nonfinite_samples_dropped', 0)} NaN/Inf samples dropped, "

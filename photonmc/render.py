@@ -151,6 +151,11 @@ def _si(x: float) -> str:
     return f"{x:.0f}"
 
 
+def safe_image(image: np.ndarray) -> np.ndarray:
+    """float32 image with non-finite pixels set to 0 (callers report how many)."""
+    return np.where(np.isfinite(image), image, 0.0).astype(np.float32)
+
+
 @dataclass
 class RunResult:
     image: np.ndarray          # (H,W,3) float32 linear
@@ -177,8 +182,7 @@ def run(prepared: Prepared, budget: Budget, quiet: bool = False, on_iteration=No
     bar.close()
     image = m.image()
     nonfinite_pixels = int((~np.isfinite(image)).any(axis=2).sum())
-    if nonfinite_pixels:       # never let NaN/Inf reach the film silently
-        image = np.where(np.isfinite(image), image, 0.0)
+    image = safe_image(image)   # never let NaN/Inf reach the film silently: counted above
     steady = iteration_times[1:]
     stats = {
         **m.stats(),

@@ -121,3 +121,22 @@ def test_pt_matches_mitsuba(name, ref_file, params):
     da, db, dr = (downsample(x, 2) for x in (la, lb, lr))
     ratio2 = np.mean((da - dr) ** 2) / (np.mean((da - db) ** 2) / 2 * (1 + n / ref_spp))
     assert ratio2 < 1.5, ratio2
+
+
+@pytest.mark.convergence
+def test_pt_error_falls_as_one_over_sqrt_n():
+    """RMSE against the Mitsuba reference along one progressive run: an unbiased estimator's
+    error falls as N^-1/2 (slope -0.5 in log-log) until the reference's own noise shows."""
+    ref = read_image(REFS / "cornell-box-64.exr")
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 64})
+    p = prepare(scene, seed=3)
+    checkpoints, errors = (16, 64, 256, 1024), []
+
+    def record(method, iteration, elapsed):
+        if iteration in checkpoints:
+            errors.append(np.sqrt(np.mean((luminance(method.image()) - luminance(ref)) ** 2)))
+
+    run(p, Budget(iterations=checkpoints[-1]), quiet=True, on_iteration=record)
+    slope = np.polyfit(np.log(checkpoints), np.log(errors), 1)[0]
+    print(f"pt RMSE {np.round(errors, 5).tolist()} at {checkpoints} iterations: slope {slope:.3f}")
+    assert -0.6 < slope < -0.4

@@ -11,6 +11,7 @@ import math
 import numpy as np
 import taichi as ti
 
+from ..errors import SceneError
 from ..scene.bvh import build_bvh
 from ..scene.scene import DIELECTRIC, Scene
 from . import bsdf as bsdf_mod
@@ -21,7 +22,7 @@ Surface = ti.types.struct(p=vec3, ng=vec3, ns=vec3, material=ti.i32, emitter=ti.
 LightSample = ti.types.struct(p=vec3, n=vec3, radiance=vec3, pdf_a=ti.f32)
 
 MISS, TRIANGLE, SPHERE = -1, 0, 1
-STACK_SIZE = 64
+STACK_SIZE = 32     # the SAH build has depth ~18 at 80k triangles; deeper trees are refused
 UNBOUNDED_DEPTH = 1 << 30
 
 
@@ -76,7 +77,8 @@ class DeviceScene:
         self.node_right_or_first = _field(ti.i32, n_nodes, bvh.right_or_first)
         self.node_count = _field(ti.i32, n_nodes, bvh.count)
         if bvh.depth > STACK_SIZE - 2:
-            raise RuntimeError(f"BVH depth {bvh.depth} exceeds the traversal stack")
+            raise SceneError(f"{scene.path}: the BVH over {n_tri} triangles is {bvh.depth} levels deep, more than "
+                             f"the traversal stack of {STACK_SIZE} holds (highly clustered geometry?)")
         ns = self.n_spheres
         self.sph_center = _field(ti.f32, ns, scene.sphere_center, 3)
         self.sph_radius = _field(ti.f32, ns, scene.sphere_radius)

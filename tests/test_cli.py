@@ -1,0 +1,127 @@
+"""The command line as a user meets it: outputs, statistics, bad input, Ctrl-C."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from photonmc.imageio import read_image, read_metadata
+
+from .conftest import SCENES
+
+CORNELL = str(SCENES / "cornell-box" / "scene.xml")
+SMALL = [CORNELL, "-D", "res=16"]
+
+
+def photonmc(*args, cwd=None, timeout=300):
+    return subprocess.run([sys.executable, "-m", "photonmc", *args], capture_output=True, text=True,
+                          cwd=cwd, timeout=timeout)
+
+
+def test_render_writes_exr_png_and_stats(tmp_path):
+    out, stats = tmp_path / "img.exr", tmp_path / "stats.json"
+    r = photonmc("render", *SMALL, "--iterations", "3", "--seed", "5", "--out", str(out), "--stats", str(stats))
+    assert r.returncode == 0, r.stderr
+    img = read_image(out)
+    assert img.shape == (16, 16, 3) and np.isfinite(img).all() and img.mean() > 0
+    assert (tmp_path / "img.png").is_file()
+    meta = read_metadata(out)
+    assert meta["method"] == "pt" and meta["seed"] == "5" and meta["iterations"] == "3"
+    s = json.loads(stats.read_text())
+    for key in ("method", "scene", "seed", "resolution", "iterations", "samples", "nonfinite_samples_dropped"):
+        assert key in s
+    assert s["iterations"] == 3 and s["resolution"] == [16, 16] and s["samples"] == 3 * 256
+    assert set(s["wall_seconds"]) >= {"load", "first_iteration_incl_compile", "steady_per_iteration"}
+    assert "Traceback" not in r.stderr
+
+
+def test_default_scene_with_no_arguments(tmp_path):
+    r = photonmc("render", "--iterations", "1", "--quiet", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert read_image(tmp_path / "render.exr").shape == (256, 256, 3)
+    assert (tmp_path / "render.png").is_file()
+
+
+def test_png_only_output(tmp_path):
+    r = photonmc("render", *SMALL, "--iterations", "1", "--quiet", "--out", str(tmp_path / "a.png"))
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "a.png").is_file() and not (tmp_path / "a.exr").exists()
+
+
+BAD = {
+    "missing scene": (["render", "/nonexistent/scene.xml"], "cannot read scene file"),
+    "bad out suffix": (["render", *SMALL, "--out", "x.jpg"], "--out must end in .exr or .png"),
+    "missing out dir": (["render", *SMALL, "--out", "/nonexistent/dir/x.exr"], "does not exist"),
+    "negative time": (["render", *SMALL, "--time", "-1"], "--time must be a positive"),
+    "nan time": (["render", *SMALL, "--time", "nan"], "--time must be a positive"),
+    "zero iterations": (["render", *SMALL, "--iterations", "0"], "--iterations must be at least 1"),
+    "unknown method": (["render", *SMALL, "--method", "bogus"], "unknown method 'bogus'"),
+    "planned method": (["render", *SMALL, "--method", "mbe"], "not implemented yet"),
+    "negative seed": (["render", *SMALL, "--seed", "-1"], "--seed must be"),
+    "zero max depth": (["render", *SMALL, "--max-depth", "0"], "--max-depth must be"),
+    "zero threads": (["render", *SMALL, "--threads", "0"], "--threads must be at least 1"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_input_gives_one_line_error(case, tmp_path):
+    args, message = BAD[case]
+    r = photonmc(*args, cwd=tmp_path)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("photonmc: error:"), r.stderr
+    assert message in lines[0]
+
+
+def test_malformed_scene_gives_one_line_error(tmp_path):
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<scene version='3.0.0'><shape type='cube'></scene>")
+    r = photonmc("render", str(bad), cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "malformed XML" in r.stderr
+
+
+def test_same_seed_same_image_for_any_thread_count(tmp_path):
+    images = []
+    for threads in ("1", "2"):
+        out = tmp_path / f"t{threads}.exr"
+        r = photonmc("render", *SMALL, "--iterations", "4", "--seed", "9", "--threads", threads,
+                     "--quiet", "--out", str(out))
+        assert r.returncode == 0, r.stderr
+        images.append(read_image(out))
+    assert np.array_equal(images[0], images[1])
+
+
+def test_ctrl_c_keeps_the_image_computed_so_far(tmp_path):
+    out, stats = tmp_path / "long.exr", tmp_path / "s.json"
+    p = subprocess.Popen([sys.executable, "-m", "photonmc", "render", *SMALL, "--time", "300", "--checkpoint", "0.2",
+                          "--quiet", "--out", str(out), "--stats", str(stats)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not out.exists() and time.time() < deadline and p.poll() is None:   # first checkpoint: loop running
+        time.sleep(0.1)
+    assert out.exists(), "no checkpoint was written"
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    s = json.loads(stats.read_text())
+    assert s["interrupted"] is True and s["iterations"] >= 1
+    assert read_metadata(out)["iterations"] == str(s["iterations"])
+    assert read_image(out).mean() > 0
+    assert "Traceback" not in err
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGTERM semantics")
+def test_sigterm_also_stops_cleanly(tmp_path):
+    out = tmp_path / "t.exr"
+    p = subprocess.Popen([sys.executable, "-m", "photonmc", "render", *SMALL, "--time", "300", "--checkpoint", "0.2",
+                          "--quiet", "--out", str(out)], stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not out.exists() and time.time() < deadline and p.poll() is None:
+        time.sleep(0.1)
+    p.send_signal(signal.SIGTERM)
+    p.communicate(timeout=60)
+    assert p.returncode == 130 and read_image(out).mean() > 0
