@@ -77,6 +77,7 @@ def bench_bvh(n_rays):
         result["embree_rays_per_s"] = n_rays / best_of(lambda: es.run(o, d, output=1))
         e_out = es.run(o, d, output=1)
         ok = e_out["geomID"] >= 0
+        result["embree_hit_fraction"] = float(ok.mean())
         result["embree_agreement_t"] = float(np.median(np.abs(e_out["tfar"][ok] - t_hit[ok])))
     except ImportError:
         result["embree_rays_per_s"] = None
