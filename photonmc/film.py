@@ -6,6 +6,7 @@ A sample that is NaN or infinite is dropped and counted, never added to the imag
 import numpy as np
 import taichi as ti
 
+from .kernels.fields import FieldGroup
 from .kernels.sampling import luminance
 
 
@@ -13,10 +14,15 @@ from .kernels.sampling import luminance
 class Film:
     def __init__(self, width: int, height: int):
         self.width, self.height = width, height
-        self.sum = ti.Vector.field(3, ti.f64, shape=(height, width))
-        self.sum_sq = ti.field(ti.f64, shape=(height, width))    # of luminance, for error bars
-        self.nonfinite = ti.field(ti.i64, shape=())
+        self.fields = FieldGroup()
+        self.sum = self.fields.vector(3, ti.f64, (height, width))
+        self.sum_sq = self.fields.scalar(ti.f64, (height, width))    # of luminance, for error bars
+        self.nonfinite = self.fields.scalar(ti.i64)
+        self.fields.finalize()
         self.samples_per_pixel = 0
+
+    def release(self):
+        self.fields.release()
 
     @ti.func
     def add(self, y: ti.i32, x: ti.i32, rgb):

@@ -48,6 +48,12 @@ class Prepared:
     method: object
     timings: dict = field(default_factory=dict)
 
+    def release(self):
+        """Free device memory. Long-lived processes that render many scenes (tests, tools)
+        call this: Taichi holds a limited number of field trees per process."""
+        self.method.release()
+        self.dscene.release()
+
 
 def default_scene_path() -> Path:
     """The bundled Cornell box, installed as package data or found in the source tree."""
@@ -123,12 +129,16 @@ class ProgressBar:
         self.method, self.budget = method, budget
         self.enabled = enabled and sys.stderr.isatty()
         self.last = 0.0
+        self.first = None
 
     def update(self, iteration, elapsed, force=False):
         if not self.enabled or (not force and time.perf_counter() - self.last < 0.2):
             return
         self.last = time.perf_counter()
-        rate = self.method.work_done / elapsed if elapsed > 0 else 0.0
+        if self.first is None:             # rate from the end of the first iteration: no compile time
+            self.first = (elapsed, self.method.work_done)
+        span = elapsed - self.first[0]
+        rate = (self.method.work_done - self.first[1]) / span if span > 0 else 0.0
         eta = ""
         if self.budget.iterations is not None and iteration > 0:
             eta = f"  ETA {elapsed / iteration * (self.budget.iterations - iteration):.1f} s"

@@ -82,7 +82,8 @@ def brute_force(scene, o, d):
 
 def test_closest_hit_matches_brute_force():
     scene = soup_scene()
-    rc = RayCaster(DeviceScene(scene))
+    dscene = DeviceScene(scene)
+    rc = RayCaster(dscene)
     rng = np.random.default_rng(1)
     n = 3000
     o = rng.uniform(-1.5, 1.5, (n, 3))
@@ -101,4 +102,21 @@ def test_closest_hit_matches_brute_force():
     assert (kind[~hit] == -1).all()
     # any-hit finds a hit exactly when the closest hit exists
     _, any_kind, _ = rc.cast(o, d, any_hit=True)
+    dscene.release()
     assert np.array_equal(any_kind >= 0, hit)
+
+
+def test_released_scenes_free_their_field_trees(write_scene):
+    """Taichi allows ~512 field trees per process; a scene and its method each use one and
+    give it back on release(), so a test session or a long-lived tool can render many scenes."""
+    from photonmc import load_scene
+    from photonmc.render import prepare
+    from .conftest import camera_xml
+    scene = load_scene(write_scene(camera_xml(res=4) + '<shape type="sphere"><boolean name="flip_normals" '
+                                   'value="true"/><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>'))
+    p = prepare(scene)
+    ids = (p.dscene.fields._tree.id, p.method.film.fields._tree.id)
+    p.release()
+    q = prepare(scene)
+    assert (q.dscene.fields._tree.id, q.method.film.fields._tree.id) in (ids, ids[::-1])
+    q.release()

@@ -31,21 +31,23 @@ def furnace_expectation(depth):
 
 
 def render_method(scene, iterations, seed=0, max_depth=None, method="pt"):
+    """Render; returns (per-pixel standard error of luminance, RunResult) and frees the device memory."""
     p = prepare(scene, method=method, seed=seed, max_depth=max_depth)
     r = run(p, Budget(iterations=iterations), quiet=True)
-    return p, r
+    se = p.method.standard_error()
+    p.release()
+    return se, r
 
 
 # Per-sample float32 rounding (about 10 ulps seen); a ray-offset bias found earlier was 1.1e-5.
 F32_SLACK = 4e-6
 
 
-def assert_matches_constant(p, image, expected, sigmas=5.0):
+def assert_matches_constant(se, image, expected, sigmas=5.0):
     """The image mean, and every pixel, agree with `expected`.
 
     All pixels share one expectation, so the spread across pixels measures each pixel's
     error honestly; a pixel's own sample variance can miss rare Russian-roulette survivors."""
-    se = p.method.standard_error()
     lum = luminance(image)
     spread = lum.std()
     assert np.all(np.abs(lum - expected) <= sigmas * np.maximum(se, 1.2 * spread) + F32_SLACK * expected)
@@ -55,8 +57,8 @@ def assert_matches_constant(p, image, expected, sigmas=5.0):
 @pytest.mark.parametrize("depth", [1, 2, 3, -1])
 def test_sphere_furnace_analytic(write_scene, depth):
     scene = load_scene(write_scene(furnace_xml("sphere")))
-    p, r = render_method(scene, 256, max_depth=depth)
-    assert_matches_constant(p, r.image, furnace_expectation(depth))
+    se, r = render_method(scene, 256, max_depth=depth)
+    assert_matches_constant(se, r.image, furnace_expectation(depth))
     if depth == 1:        # only emission is seen: exact, no noise
         np.testing.assert_allclose(r.image, RADIANCE, rtol=1e-6)
 
@@ -65,14 +67,14 @@ def test_sphere_furnace_analytic(write_scene, depth):
 def test_cube_furnace_at_extreme_scales(write_scene, scale):
     """12 emitting triangles; ray offsets must work whether the scene is a millimetre or a kilometre."""
     scene = load_scene(write_scene(furnace_xml("cube", scale)))
-    p, r = render_method(scene, 256, max_depth=-1)
-    assert_matches_constant(p, r.image, furnace_expectation(-1))
+    se, r = render_method(scene, 256, max_depth=-1)
+    assert_matches_constant(se, r.image, furnace_expectation(-1))
     assert r.stats["nonfinite_samples_dropped"] == 0
 
 
 def test_max_depth_one_shows_only_emitters():
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 32})
-    p, r = render_method(scene, 4, max_depth=1)
+    _, r = render_method(scene, 4, max_depth=1)
     lit = luminance(r.image) > 0
     assert 0 < lit.sum() < lit.size * 0.1
     # Seen pixels are fully inside the light (box filter covers partial pixels with less).
@@ -137,6 +139,7 @@ def test_pt_error_falls_as_one_over_sqrt_n():
             errors.append(np.sqrt(np.mean((luminance(method.image()) - luminance(ref)) ** 2)))
 
     run(p, Budget(iterations=checkpoints[-1]), quiet=True, on_iteration=record)
+    p.release()
     slope = np.polyfit(np.log(checkpoints), np.log(errors), 1)[0]
     print(f"pt RMSE {np.round(errors, 5).tolist()} at {checkpoints} iterations: slope {slope:.3f}")
     assert -0.6 < slope < -0.4

@@ -15,6 +15,7 @@ from ..errors import SceneError
 from ..scene.bvh import build_bvh
 from ..scene.scene import DIELECTRIC, Scene
 from . import bsdf as bsdf_mod
+from .fields import FieldGroup
 from .sampling import uniform_sphere, uniform_triangle, vec3
 
 Hit = ti.types.struct(t=ti.f32, kind=ti.i32, prim=ti.i32, b1=ti.f32, b2=ti.f32)
@@ -24,13 +25,6 @@ LightSample = ti.types.struct(p=vec3, n=vec3, radiance=vec3, pdf_a=ti.f32)
 MISS, TRIANGLE, SPHERE = -1, 0, 1
 STACK_SIZE = 32     # the SAH build has depth ~18 at 80k triangles; deeper trees are refused
 UNBOUNDED_DEPTH = 1 << 30
-
-
-def _field(dtype, n, values=None, dim=None):
-    f = ti.Vector.field(dim, dtype, shape=max(n, 1)) if dim else ti.field(dtype, shape=max(n, 1))
-    if values is not None and n > 0:
-        f.from_numpy(np.ascontiguousarray(values, dtype=np.float32 if dtype == ti.f32 else np.int32))
-    return f
 
 
 @ti.data_oriented
@@ -47,10 +41,16 @@ class DeviceScene:
         # since float32 round-off grows with coordinate magnitude.
         self.ray_eps = float(2e-5 * max(np.linalg.norm(hi - lo), np.abs(np.stack([lo, hi])).max()))
         self.extent = float(np.linalg.norm(hi - lo))
+        self.fields = FieldGroup()
         self._upload_geometry(scene)
         self._upload_materials(scene)
         self._upload_lights(scene)
         self._upload_camera(scene)
+        self.fields.finalize()
+
+    def release(self):
+        """Free the device memory (and the SNode tree); the object is unusable afterwards."""
+        self.fields.release()
 
     # -- upload ----------------------------------------------------------------------
     def _upload_geometry(self, scene: Scene):
@@ -60,39 +60,39 @@ class DeviceScene:
         v = scene.tri_vertices[order]
         n_tri = len(order)
         self.n_tri = n_tri
-        self.tri_v0 = _field(ti.f32, n_tri, v[:, 0], 3)
-        self.tri_e1 = _field(ti.f32, n_tri, v[:, 1] - v[:, 0], 3)
-        self.tri_e2 = _field(ti.f32, n_tri, v[:, 2] - v[:, 0], 3)
+        self.tri_v0 = self.fields.vector(3, ti.f32, n_tri, v[:, 0])
+        self.tri_e1 = self.fields.vector(3, ti.f32, n_tri, v[:, 1] - v[:, 0])
+        self.tri_e2 = self.fields.vector(3, ti.f32, n_tri, v[:, 2] - v[:, 0])
         nrm = scene.tri_normals[order]
-        self.tri_n0 = _field(ti.f32, n_tri, nrm[:, 0], 3)
-        self.tri_n1 = _field(ti.f32, n_tri, nrm[:, 1], 3)
-        self.tri_n2 = _field(ti.f32, n_tri, nrm[:, 2], 3)
-        self.tri_material = _field(ti.i32, n_tri, scene.tri_material[order])
-        self.tri_emitter = _field(ti.i32, n_tri, scene.tri_emitter[order])
+        self.tri_n0 = self.fields.vector(3, ti.f32, n_tri, nrm[:, 0])
+        self.tri_n1 = self.fields.vector(3, ti.f32, n_tri, nrm[:, 1])
+        self.tri_n2 = self.fields.vector(3, ti.f32, n_tri, nrm[:, 2])
+        self.tri_material = self.fields.scalar(ti.i32, n_tri, scene.tri_material[order])
+        self.tri_emitter = self.fields.scalar(ti.i32, n_tri, scene.tri_emitter[order])
         self.tri_slot_of = np.empty(n_tri, np.int64)      # original triangle -> BVH slot
         self.tri_slot_of[order] = np.arange(n_tri)
         n_nodes = bvh.node_count
-        self.node_min = _field(ti.f32, n_nodes, bvh.bmin, 3)
-        self.node_max = _field(ti.f32, n_nodes, bvh.bmax, 3)
-        self.node_right_or_first = _field(ti.i32, n_nodes, bvh.right_or_first)
-        self.node_count = _field(ti.i32, n_nodes, bvh.count)
+        self.node_min = self.fields.vector(3, ti.f32, n_nodes, bvh.bmin)
+        self.node_max = self.fields.vector(3, ti.f32, n_nodes, bvh.bmax)
+        self.node_right_or_first = self.fields.scalar(ti.i32, n_nodes, bvh.right_or_first)
+        self.node_count = self.fields.scalar(ti.i32, n_nodes, bvh.count)
         if bvh.depth > STACK_SIZE - 2:
             raise SceneError(f"{scene.path}: the BVH over {n_tri} triangles is {bvh.depth} levels deep, more than "
                              f"the traversal stack of {STACK_SIZE} holds (highly clustered geometry?)")
         ns = self.n_spheres
-        self.sph_center = _field(ti.f32, ns, scene.sphere_center, 3)
-        self.sph_radius = _field(ti.f32, ns, scene.sphere_radius)
-        self.sph_flip = _field(ti.i32, ns, scene.sphere_flip.astype(np.int32))
-        self.sph_material = _field(ti.i32, ns, scene.sphere_material)
-        self.sph_emitter = _field(ti.i32, ns, scene.sphere_emitter)
+        self.sph_center = self.fields.vector(3, ti.f32, ns, scene.sphere_center)
+        self.sph_radius = self.fields.scalar(ti.f32, ns, scene.sphere_radius)
+        self.sph_flip = self.fields.scalar(ti.i32, ns, scene.sphere_flip.astype(np.int32))
+        self.sph_material = self.fields.scalar(ti.i32, ns, scene.sphere_material)
+        self.sph_emitter = self.fields.scalar(ti.i32, ns, scene.sphere_emitter)
 
     def _upload_materials(self, scene: Scene):
         nb = len(scene.bsdfs)
-        self.bsdf_kind = _field(ti.i32, nb, [b.kind for b in scene.bsdfs])
-        self.bsdf_color = _field(ti.f32, nb, np.array([b.color for b in scene.bsdfs]), 3)
-        self.bsdf_trans = _field(ti.f32, nb, np.array([b.transmittance for b in scene.bsdfs]), 3)
-        self.bsdf_eta = _field(ti.f32, nb, [b.eta for b in scene.bsdfs])
-        self.mat_sides = _field(ti.i32, len(scene.materials), scene.materials, 2)
+        self.bsdf_kind = self.fields.scalar(ti.i32, nb, [b.kind for b in scene.bsdfs])
+        self.bsdf_color = self.fields.vector(3, ti.f32, nb, np.array([b.color for b in scene.bsdfs]))
+        self.bsdf_trans = self.fields.vector(3, ti.f32, nb, np.array([b.transmittance for b in scene.bsdfs]))
+        self.bsdf_eta = self.fields.scalar(ti.f32, nb, [b.eta for b in scene.bsdfs])
+        self.mat_sides = self.fields.vector(2, ti.i32, len(scene.materials), scene.materials)
 
     def _upload_lights(self, scene: Scene):
         """Emitting primitives with a CDF proportional to power (luminance x area x pi)."""
@@ -119,19 +119,19 @@ class DeviceScene:
         cdf[-1] = 1.0
         n = len(kinds)
         self.n_lights = n
-        self.light_kind = _field(ti.i32, n, kinds)
-        self.light_prim = _field(ti.i32, n, prims)
-        self.light_cdf = _field(ti.f32, n, cdf)
-        self.light_area = _field(ti.f32, n, areas)
-        self.light_pick = _field(ti.f32, n, pick)
-        self.emitter_radiance = _field(ti.f32, len(rad), rad, 3)
+        self.light_kind = self.fields.scalar(ti.i32, n, kinds)
+        self.light_prim = self.fields.scalar(ti.i32, n, prims)
+        self.light_cdf = self.fields.scalar(ti.f32, n, cdf)
+        self.light_area = self.fields.scalar(ti.f32, n, areas)
+        self.light_pick = self.fields.scalar(ti.f32, n, pick)
+        self.emitter_radiance = self.fields.vector(3, ti.f32, len(rad), rad)
         # pdf_a of each emitting primitive under light sampling, for MIS at emitter hits.
         tri_pdf = np.zeros(max(self.n_tri, 1))
         sph_pdf = np.zeros(max(self.n_spheres, 1))
         for k, p, a, w in zip(kinds, prims, areas, pick):
             (tri_pdf if k == 0 else sph_pdf)[p] = w / a
-        self.tri_light_pdf = _field(ti.f32, self.n_tri, tri_pdf[: self.n_tri])
-        self.sph_light_pdf = _field(ti.f32, self.n_spheres, sph_pdf[: self.n_spheres])
+        self.tri_light_pdf = self.fields.scalar(ti.f32, self.n_tri, tri_pdf[: self.n_tri])
+        self.sph_light_pdf = self.fields.scalar(ti.f32, self.n_spheres, sph_pdf[: self.n_spheres])
 
     def _upload_camera(self, scene: Scene):
         cam = scene.camera

@@ -49,6 +49,9 @@ class Method:
     def method_stats(self) -> dict:
         return {}
 
+    def release(self) -> None:
+        """Free the method's device memory; override when the method owns fields."""
+
     def stats(self) -> dict:
         return {"method": self.name, "iterations": self.iterations, self.work_unit: self.work_done,
                 **self.method_stats()}

@@ -37,6 +37,9 @@ class PathTracer(Method):
     def image(self):
         return self.film.mean()
 
+    def release(self):
+        self.film.release()
+
     def standard_error(self):
         return self.film.standard_error()
 
