@@ -33,6 +33,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--threads", type=int, help="CPU threads (default: all cores)")
     r.add_argument("--max-depth", type=int, help="override the scene's max_depth (Mitsuba meaning)")
     r.add_argument("--stats", metavar="PATH.json", help="write render statistics as JSON")
+    pm = r.add_argument_group("photon mapping (sppm)")
+    pm.add_argument("--photons", type=int, help="photon paths per iteration (default: one per pixel)")
+    pm.add_argument("--alpha", type=float, help="fraction of new photons kept by the radius update (default 2/3)")
+    pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
+                                                 "(default: 2 pixel footprints at each pixel's first hit)")
     r.add_argument("--checkpoint", type=float, default=60.0, metavar="SECONDS",
                    help="also write the image every SECONDS while rendering (0: only at the end; default 60)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
@@ -51,8 +56,9 @@ def cmd_render(args) -> int:
     if not (args.checkpoint >= 0):
         raise PhotonmcError(f"--checkpoint must be >= 0 seconds, got {args.checkpoint}")
     budget = Budget(time=args.time, iterations=args.iterations)
+    options = {"photons": args.photons, "alpha": args.alpha, "radius": args.radius}
     prepared = prepare(args.scene, method=args.method, seed=args.seed, max_depth=args.max_depth,
-                       arch=args.arch, threads=args.threads, params=dict(args.defines))
+                       arch=args.arch, threads=args.threads, options=options, params=dict(args.defines))
     for w in prepared.scene.warnings:
         print(f"photonmc: warning: {w}", file=sys.stderr)
     def metadata(iterations):

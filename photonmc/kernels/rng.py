@@ -27,3 +27,11 @@ def next_float(state: ti.template()) -> ti.f32:
     word = ((state >> ((state >> 28) + ti.u32(4))) ^ state) * ti.u32(277803737)
     x = (word >> 22) ^ word
     return ti.cast(x >> 8, ti.f32) * (1.0 / 16777216.0)
+
+
+@ti.func
+def uniform(key: ti.u32, dim: ti.i32) -> ti.f32:
+    """Random access to coordinate `dim` of the primary sample vector identified by `key`
+    (stateless: the same key and dim always give the same number)."""
+    x = hash_u32(key ^ hash_u32(ti.u32(dim) * ti.u32(0x9E3779B9) + ti.u32(0x7F4A7C15)))
+    return ti.cast(x >> 8, ti.f32) * (1.0 / 16777216.0)

@@ -12,9 +12,12 @@ def method_class(name: str):
     if name == "pt":
         from .pt import PathTracer
         return PathTracer
+    if name == "sppm":
+        from .sppm import Sppm
+        return Sppm
     if name in PLANNED:
         raise SettingsError(f"method '{name}' is not implemented yet in this version of photonmc "
-                            f"(available: pt)")
+                            f"(available: pt, sppm)")
     raise SettingsError(f"unknown method '{name}' (choose from {', '.join(PLANNED)})")
 
 

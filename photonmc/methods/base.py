@@ -27,6 +27,7 @@ class Method:
     name = "?"
     work_unit = "paths"              # what work_done counts, for rates in progress and stats
     default_iterations = 64
+    OPTIONS: dict = {}               # method-specific options and their defaults
 
     def __init__(self, dscene, settings: MethodSettings):
         self.dscene = dscene
@@ -34,6 +35,12 @@ class Method:
         self.seed_u32 = settings.seed & 0xFFFFFFFF
         self.iterations = 0
         self.work_done = 0
+        given = {k: v for k, v in settings.options.items() if v is not None}
+        unknown = set(given) - set(self.OPTIONS)
+        if unknown:
+            names = ", ".join("--" + k.replace("_", "-") for k in sorted(unknown))
+            raise SettingsError(f"method '{self.name}' does not take {names}")
+        self.options = {**self.OPTIONS, **given}
 
     def iterate(self) -> None:
         self._iterate()

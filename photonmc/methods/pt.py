@@ -12,6 +12,7 @@ import taichi as ti
 from ..film import Film
 from ..kernels import rng
 from ..kernels.device_scene import MISS, UNBOUNDED_DEPTH, DeviceScene
+from ..kernels.direct import next_event
 from ..kernels.sampling import onb, power_heuristic, to_local, to_world, vec3
 from .base import Method, MethodSettings
 
@@ -89,7 +90,7 @@ class PathTracer(Method):
             t1, t2 = onb(n)
             wo_l = to_local(wo, t1, t2, n)
             if not sc.bsdf_is_delta(b):
-                L += beta * self.next_event(s, b, wo_l, n, t1, t2, state)
+                L += beta * next_event(sc, s.p, s.ng, b, wo_l, n, t1, t2, state, True)
             bs = sc.bsdf_sample(b, wo_l, rng.next_float(state), rng.next_float(state),
                                 rng.next_float(state), True)
             if not bs.ok:
@@ -109,26 +110,3 @@ class PathTracer(Method):
             o = sc.spawn(s.p, s.ng, d)
             prev_p = s.p
         return L
-
-    @ti.func
-    def next_event(self, s, b: ti.i32, wo_l, n, t1, t2, state: ti.template()):
-        """Emitter sampling at a non-delta vertex, MIS-weighted against BSDF sampling."""
-        sc = self.dscene
-        contrib = vec3(0.0)
-        ls = sc.sample_light(rng.next_float(state), rng.next_float(state), rng.next_float(state))
-        to_l = ls.p - s.p
-        dist2 = to_l.dot(to_l)
-        if dist2 > 0.0:
-            dist = ti.sqrt(dist2)
-            wi = to_l / dist
-            cos_l = -wi.dot(ls.n)
-            wi_l = to_local(wi, t1, t2, n)
-            if cos_l > 0.0:
-                f = sc.bsdf_eval(b, wo_l, wi_l)
-                if f.max() > 0.0:
-                    o = sc.spawn(s.p, s.ng, wi)
-                    if not sc.occluded(o, wi, dist * (1.0 - 1e-4) - 2.0 * sc.ray_eps):
-                        pdf_light_w = ls.pdf_a * dist2 / cos_l
-                        w = power_heuristic(pdf_light_w, sc.bsdf_pdf(b, wo_l, wi_l))
-                        contrib = f * ti.abs(wi_l.z) * ls.radiance * (w / pdf_light_w)
-        return contrib

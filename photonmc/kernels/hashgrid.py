@@ -1,0 +1,101 @@
+"""Spatial hash grid over points with individual radii (SPPM measurement points).
+
+Rebuilt every iteration: cell size = 2 x the largest radius, so each point's ball overlaps
+at most 2x2x2 cells; the point is listed in each of them and a query at x visits only the
+cell containing x. Build = count per cell (atomics), exclusive prefix sum, fill.
+Hash collisions only cost time: callers test the actual distance.
+"""
+import taichi as ti
+
+from .fields import FieldGroup
+
+
+@ti.func
+def _hash(c) -> ti.u32:
+    return (ti.cast(c.x, ti.u32) * ti.u32(73856093)) ^ (ti.cast(c.y, ti.u32) * ti.u32(19349663)) \
+        ^ (ti.cast(c.z, ti.u32) * ti.u32(83492791))
+
+
+@ti.data_oriented
+class HashGrid:
+    def __init__(self, n_points: int):
+        self.n_points = n_points
+        size = 1
+        while size < 2 * n_points:
+            size *= 2
+        self.table_size = size
+        self.fields = FieldGroup()
+        self.cell_count = self.fields.scalar(ti.i32, size)
+        self.cell_start = self.fields.scalar(ti.i32, size)
+        self.cell_fill = self.fields.scalar(ti.i32, size)
+        self.entries = self.fields.scalar(ti.i32, 8 * n_points)
+        self.cell_size = self.fields.scalar(ti.f32)
+        self.max_radius = self.fields.scalar(ti.f32)
+        self.fields.finalize()
+
+    def release(self):
+        self.fields.release()
+
+    def build(self, pos, radius, valid):
+        """pos (vec3), radius (f32), valid (i32) are fields indexed like the points."""
+        self._bounds(pos, radius, valid)
+        self._count(pos, radius, valid)
+        self._prefix_sum()
+        self._fill(pos, radius, valid)
+
+    @ti.func
+    def cell_of(self, x):
+        return ti.floor(x / self.cell_size[None]).cast(ti.i32)
+
+    @ti.func
+    def slot(self, cell) -> ti.i32:
+        return ti.cast(_hash(cell) & ti.u32(self.table_size - 1), ti.i32)
+
+    @ti.kernel
+    def _bounds(self, pos: ti.template(), radius: ti.template(), valid: ti.template()):
+        self.max_radius[None] = 0.0
+        for i in range(self.n_points):
+            if valid[i]:
+                ti.atomic_max(self.max_radius[None], radius[i])
+        for h in range(self.table_size):
+            self.cell_count[h] = 0
+            self.cell_fill[h] = 0
+
+    @ti.func
+    def _cell_range(self, p, r):
+        return self.cell_of(p - r), self.cell_of(p + r)
+
+    @ti.kernel
+    def _count(self, pos: ti.template(), radius: ti.template(), valid: ti.template()):
+        self.cell_size[None] = ti.max(2.0 * self.max_radius[None], 1e-30)
+        for i in range(self.n_points):
+            if valid[i]:
+                lo, hi = self._cell_range(pos[i], radius[i])
+                for cx, cy, cz in ti.ndrange((lo.x, hi.x + 1), (lo.y, hi.y + 1), (lo.z, hi.z + 1)):
+                    ti.atomic_add(self.cell_count[self.slot(ti.Vector([cx, cy, cz]))], 1)
+
+    @ti.kernel
+    def _prefix_sum(self):
+        ti.loop_config(serialize=True)
+        for h in range(self.table_size):
+            if h == 0:
+                self.cell_start[0] = 0
+            else:
+                self.cell_start[h] = self.cell_start[h - 1] + self.cell_count[h - 1]
+
+    @ti.kernel
+    def _fill(self, pos: ti.template(), radius: ti.template(), valid: ti.template()):
+        for i in range(self.n_points):
+            if valid[i]:
+                lo, hi = self._cell_range(pos[i], radius[i])
+                for cx, cy, cz in ti.ndrange((lo.x, hi.x + 1), (lo.y, hi.y + 1), (lo.z, hi.z + 1)):
+                    h = self.slot(ti.Vector([cx, cy, cz]))
+                    k = ti.atomic_add(self.cell_fill[h], 1)
+                    self.entries[self.cell_start[h] + k] = i
+
+    @ti.func
+    def candidates(self, x):
+        """(first, end) into `entries` for the points that may contain x."""
+        h = self.slot(self.cell_of(x))
+        first = self.cell_start[h]
+        return first, first + self.cell_count[h]

@@ -1,0 +1,68 @@
+"""Photon paths as a pure function of a primary sample vector u in [0,1)^D.
+
+Fixed layout (algorithms.md §0), so that a small change of u gives a nearby path and a
+Markov chain can mutate u directly:
+    u[0]                light choice (by power)
+    u[1], u[2]          point on the light
+    u[3], u[4]          emission direction (cosine-weighted about the light's normal)
+    u[5+4b .. 8+4b]     bounce b: BSDF direction (2), lobe choice (1), Russian roulette (1)
+A `source` object supplies coordinates through `source.get(key, dim)`: a hash for plain
+photon tracing, a chain's stored state for MCMC. A `visitor` receives every photon vertex
+on a non-delta surface reached after at least two segments (direct light is computed by
+next-event estimation from the camera side) and returns whether it used it.
+"""
+import math
+
+import taichi as ti
+
+from .sampling import cosine_hemisphere, onb, to_local, to_world, vec3
+
+LIGHT_DIMS = 5
+BOUNCE_DIMS = 4
+MAX_PHOTON_SEGMENTS = 64      # cap for scenes with unbounded max_depth (Russian roulette ends paths first)
+
+
+def dimensions(max_segments: int) -> int:
+    """Length of the primary sample vector for paths of up to max_segments segments."""
+    return LIGHT_DIMS + BOUNCE_DIMS * max_segments
+
+
+@ti.func
+def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.template(), vkey, max_segments: ti.i32):
+    """Trace one photon path; returns 1 if the visitor used any of its vertices."""
+    used = 0
+    ls = sc.sample_light(source.get(key, 0), source.get(key, 1), source.get(key, 2))
+    t1, t2 = onb(ls.n)
+    d = to_world(cosine_hemisphere(source.get(key, 3), source.get(key, 4)), t1, t2, ls.n)
+    # Power carried: Le cos / (pdf_a * pdf_w) with pdf_w = cos/pi.
+    beta = ls.radiance * (math.pi / ls.pdf_a)
+    o = sc.spawn(ls.p, ls.n, d)
+    segments = 0
+    while segments < max_segments:
+        hit = sc.trace(o, d, ti.math.inf, False)
+        if hit.kind < 0:
+            break
+        segments += 1
+        s = sc.surface(o, d, hit)
+        wi = -d                                   # toward where the photon came from
+        b, n = sc.side_bsdf(s.material, s.ns, wi)
+        if b < 0:
+            break
+        if segments >= 2 and not sc.bsdf_is_delta(b):
+            used |= visitor.visit(vkey, s.p, n, wi, beta, segments)
+        if segments >= max_segments:
+            break
+        base = LIGHT_DIMS + BOUNCE_DIMS * (segments - 1)
+        f1, f2 = onb(n)
+        bs = sc.bsdf_sample(b, to_local(wi, f1, f2, n), source.get(key, base), source.get(key, base + 1),
+                            source.get(key, base + 2), False)
+        if not bs.ok:
+            break
+        # Roulette keeps the photon's power near constant: survive with the BSDF weight.
+        q = ti.min(1.0, bs.weight.max())
+        if source.get(key, base + 3) >= q:
+            break
+        beta *= bs.weight / q
+        d = to_world(bs.wi, f1, f2, n)
+        o = sc.spawn(s.p, s.ng, d)
+    return used

@@ -1,0 +1,263 @@
+"""Stochastic progressive photon mapping (Hachisuka & Jensen 2009; algorithms.md §1).
+
+Each iteration:
+1. camera pass: one jittered path per pixel through delta surfaces to its first non-delta
+   vertex, the pixel's measurement point (MP); emission met on the way and next-event
+   direct light at the MP go to the direct term Ld;
+2. a hash grid over the MPs;
+3. photon pass: photons from the lights (chosen by power), deposited at every non-delta
+   vertex after the first segment into the MPs whose radius contains them (one predicate,
+   `accepts`, decides both counting and contributing);
+4. per-pixel progressive update: N' = N + aM, R' = R sqrt(N'/(N+M)), and the reflected
+   flux accumulated in the D form D += W Phi / (pi R^2) (equal to the tau form, §1.3).
+Image: Ld / I + D / N_e, with N_e photons emitted in all iterations.
+
+Per-iteration flux is accumulated in 64-bit fixed point (photon power relative to the
+scene's total emitted power, 2^-32 resolution): integer atomics are order-independent, so
+a seed gives a bit-identical image whatever the thread scheduling.
+Path depth follows Mitsuba's max_depth: an MP reached after k segments takes photons that
+travelled at most max_depth - k segments.
+"""
+import math
+
+import numpy as np
+import taichi as ti
+
+from ..errors import SettingsError
+from ..kernels import rng
+from ..kernels.device_scene import MISS, UNBOUNDED_DEPTH
+from ..kernels.direct import next_event
+from ..kernels.fields import FieldGroup
+from ..kernels.hashgrid import HashGrid
+from ..kernels.photon import MAX_PHOTON_SEGMENTS, trace_photon
+from ..kernels.sampling import onb, to_local, to_world, vec3
+from .base import Method
+
+FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flux
+RR_DEPTH = 5
+NORMAL_COS_MIN = 0.1              # photon and MP surfaces must face alike (mitsuba #145 family)
+
+
+class _HashSource:
+    """Primary samples for plain photon tracing: hashed from (seed, photon, iteration)."""
+
+    @staticmethod
+    @ti.func
+    def get(key, dim):
+        return rng.uniform(key, dim)
+
+
+@ti.data_oriented
+class Sppm(Method):
+    name = "sppm"
+    work_unit = "photons"
+    default_iterations = 100
+    OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False}
+
+    def __init__(self, dscene, settings):
+        super().__init__(dscene, settings)
+        opts = self.options
+        w, h = dscene.width, dscene.height
+        self.n_pixels = w * h
+        self.photons_per_iteration = int(opts["photons"] or self.n_pixels)
+        self.alpha = float(opts["alpha"])
+        if not 1 <= self.photons_per_iteration <= 1 << 28:
+            raise SettingsError(f"--photons must be between 1 and 2^28, got {self.photons_per_iteration}")
+        if not 0.0 < self.alpha < 1.0:
+            raise SettingsError(f"--alpha must be in (0, 1), got {self.alpha}")
+        if opts["radius"] is not None and not (0 < opts["radius"] < math.inf):
+            raise SettingsError(f"--radius must be a positive length, got {opts['radius']}")
+        # Initial radius: absolute if given, else this many pixel footprints at the MP.
+        self.initial_radius = float(opts["radius"] or 0.0)
+        self.radius_pixels = float(opts["radius_pixels"])
+        self.tau_form = bool(opts["tau_form"])
+        depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
+        self.max_depth = UNBOUNDED_DEPTH if depth == -1 else depth
+        self.max_photon_segments = min(self.max_depth - 1, MAX_PHOTON_SEGMENTS)
+        self.power_scale = dscene.total_power          # photon power is stored relative to this
+        self.pixel_angle = 2.0 * dscene.tan_y / h      # pixel footprint per unit distance
+        self.photons_emitted = 0
+        self.photon_paths_used = 0
+
+        f = FieldGroup()
+        n = self.n_pixels
+        # This iteration's measurement points (one per pixel).
+        self.mp_p = f.vector(3, ti.f32, n)
+        self.mp_n = f.vector(3, ti.f32, n)
+        self.mp_wo = f.vector(3, ti.f32, n)
+        self.mp_W = f.vector(3, ti.f32, n)
+        self.mp_bsdf = f.scalar(ti.i32, n)
+        self.mp_depth = f.scalar(ti.i32, n)
+        self.mp_valid = f.scalar(ti.i32, n)
+        self.mp_radius = f.scalar(ti.f32, n)
+        # Per-pixel progressive statistics, float64.
+        self.R = f.scalar(ti.f64, n)
+        self.N = f.scalar(ti.f64, n)
+        self.D = f.vector(3, ti.f64, n)
+        self.tau = f.vector(3, ti.f64, n)
+        self.Ld = f.vector(3, ti.f64, n)
+        # Per-iteration accumulators (fixed point) and counters.
+        self.M = f.scalar(ti.i64, n)
+        self.phi = f.vector(3, ti.i64, n)
+        self.counters = f.scalar(ti.i64, 4)      # 0: paths used, 1: non-finite dropped
+        f.finalize()
+        self.fields = f
+        self.grid = HashGrid(n)
+
+    def release(self):
+        self.grid.release()
+        self.fields.release()
+
+    # -- the iteration -----------------------------------------------------------------
+    def _iterate(self):
+        it = self.iterations
+        self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle)
+        self.grid.build(self.mp_p, self.mp_radius, self.mp_valid)
+        self._photon_pass(self.seed_u32, it, self.photons_per_iteration, self.max_photon_segments)
+        self._update(self.alpha, self.power_scale / FIXED_ONE)
+        self.photons_emitted += self.photons_per_iteration
+        self.work_done += self.photons_per_iteration
+
+    @ti.kernel
+    def _camera_pass(self, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32, r_abs: ti.f32, r_per_dist: ti.f32):
+        sc = self.dscene
+        for y, x in ti.ndrange(sc.height, sc.width):
+            i = y * sc.width + x
+            state = rng.seed(seed, ti.u32(i), iteration * ti.u32(2))
+            o, d = sc.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
+            W = vec3(1.0)
+            eta_scale = 1.0
+            travelled = 0.0
+            k = 0
+            self.mp_valid[i] = 0
+            direct = vec3(0.0)
+            while True:
+                hit = sc.trace(o, d, ti.math.inf, False)
+                if hit.kind == MISS:
+                    break
+                k += 1
+                travelled += hit.t
+                s = sc.surface(o, d, hit)
+                wo = -d
+                direct += W * sc.emitted(s.emitter, s.ns, wo)   # only delta bounces so far: weight 1
+                b, n = sc.side_bsdf(s.material, s.ns, wo)
+                if b < 0:
+                    break
+                t1, t2 = onb(n)
+                wo_l = to_local(wo, t1, t2, n)
+                if not sc.bsdf_is_delta(b):
+                    if k < max_depth:
+                        direct += W * next_event(sc, s.p, s.ng, b, wo_l, n, t1, t2, state, False)
+                        self.mp_p[i] = s.p
+                        self.mp_n[i] = n
+                        self.mp_wo[i] = wo
+                        self.mp_W[i] = W
+                        self.mp_bsdf[i] = b
+                        self.mp_depth[i] = k
+                        self.mp_valid[i] = 1
+                        if self.R[i] == 0.0:      # first MP of this pixel: initial radius
+                            r0 = r_abs
+                            if r0 <= 0.0:
+                                r0 = r_per_dist * travelled
+                            self.R[i] = ti.max(ti.cast(r0, ti.f64), 1e-30)
+                        self.mp_radius[i] = ti.cast(self.R[i], ti.f32)
+                    break
+                if k >= max_depth:
+                    break
+                bs = sc.bsdf_sample(b, wo_l, rng.next_float(state), rng.next_float(state), rng.next_float(state), True)
+                if not bs.ok:
+                    break
+                W *= bs.weight
+                eta_scale *= bs.eta
+                if k >= RR_DEPTH:
+                    q = ti.min(W.max() * eta_scale * eta_scale, 0.95)
+                    if rng.next_float(state) >= q:
+                        break
+                    W /= q
+                d = to_world(bs.wi, t1, t2, n)
+                o = sc.spawn(s.p, s.ng, d)
+            if (direct == direct).all() and direct.max() < ti.math.inf:
+                self.Ld[i] += ti.cast(direct, ti.f64)
+            else:
+                ti.atomic_add(self.counters[1], 1)
+
+    @ti.kernel
+    def _photon_pass(self, seed: ti.u32, iteration: ti.u32, n_photons: ti.i32, max_segments: ti.i32):
+        for p in range(n_photons):
+            key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
+            if trace_photon(self.dscene, _HashSource, key, self, 0, max_segments):
+                ti.atomic_add(self.counters[0], 1)
+
+    @ti.func
+    def accepts(self, j: ti.i32, x, n, wi, segments: ti.i32) -> ti.i32:
+        """The one deposit predicate: counting, contributing and (later) MCMC targets use it."""
+        ok = 0
+        if self.mp_valid[j] and self.mp_depth[j] + segments <= ti.static(self.max_depth):
+            r = self.mp_radius[j]
+            if (x - self.mp_p[j]).norm_sqr() <= r * r:
+                nj = self.mp_n[j]
+                if wi.dot(nj) > 0.0 and n.dot(nj) >= NORMAL_COS_MIN:
+                    ok = 1
+        return ok
+
+    @ti.func
+    def visit(self, vkey: ti.i32, x, n, wi, beta, segments: ti.i32) -> ti.i32:
+        """Deposit a photon vertex into every MP that accepts it."""
+        used = 0
+        first, end = self.grid.candidates(x)
+        rel = beta / self.power_scale
+        for e in range(first, end):
+            j = self.grid.entries[e]
+            if self.accepts(j, x, n, wi, segments):
+                nj = self.mp_n[j]
+                t1, t2 = onb(nj)
+                f = self.dscene.bsdf_eval(self.mp_bsdf[j], to_local(self.mp_wo[j], t1, t2, nj), to_local(wi, t1, t2, nj))
+                contrib = rel * f
+                if (contrib == contrib).all() and contrib.max() < 1e9:
+                    ti.atomic_add(self.M[j], 1)
+                    fixed = ti.cast(ti.cast(contrib, ti.f64) * FIXED_ONE + 0.5, ti.i64)
+                    for c in ti.static(range(3)):
+                        ti.atomic_add(self.phi[j][c], fixed[c])
+                    used = 1
+        return used
+
+    @ti.kernel
+    def _update(self, alpha: ti.f64, flux_scale: ti.f64):
+        for i in range(self.n_pixels):
+            m = ti.cast(self.M[i], ti.f64)
+            if self.mp_valid[i] and m > 0.0:
+                r = self.R[i]
+                n_old = self.N[i]
+                n_new = n_old + alpha * m
+                r_new = r * ti.sqrt(n_new / (n_old + m))
+                phi = ti.cast(self.phi[i], ti.f64) * flux_scale
+                w_phi = ti.cast(self.mp_W[i], ti.f64) * phi
+                self.D[i] += w_phi / (math.pi * r * r)                  # D form (algorithms.md §1.3)
+                self.tau[i] = (self.tau[i] + w_phi) * (r_new * r_new) / (r * r)   # tau form, kept for the test
+                self.N[i] = n_new
+                self.R[i] = r_new
+            self.M[i] = 0
+            self.phi[i] = ti.Vector([0, 0, 0], ti.i64)
+
+    # -- results ----------------------------------------------------------------------
+    def image(self):
+        h, w = self.dscene.height, self.dscene.width
+        iters = max(self.iterations, 1)
+        ne = max(self.photons_emitted, 1)
+        direct = self.Ld.to_numpy() / iters
+        if self.tau_form:
+            r = self.R.to_numpy()[:, None]
+            area = np.where(r > 0, math.pi * r * r, 1.0)
+            indirect = self.tau.to_numpy() / area / ne
+        else:
+            indirect = self.D.to_numpy() / ne
+        return (direct + indirect).reshape(h, w, 3)
+
+    def method_stats(self):
+        c = self.counters.to_numpy()
+        r = self.R.to_numpy()
+        seen = r > 0
+        return {"photons_per_iteration": self.photons_per_iteration, "photons_emitted": self.photons_emitted,
+                "fraction_of_photon_paths_depositing": float(c[0]) / max(self.photons_emitted, 1),
+                "mean_radius": float(r[seen].mean()) if seen.any() else None,
+                "alpha": self.alpha, "nonfinite_samples_dropped": int(c[1])}
