@@ -62,17 +62,33 @@ class HashGrid:
             self.cell_fill[h] = 0
 
     @ti.func
-    def _cell_range(self, p, r):
-        return self.cell_of(p - r), self.cell_of(p + r)
+    def _slots_of(self, p, r):
+        """Distinct table slots of the (at most 8) cells that the ball (p, r) overlaps.
+        Two cells of one point can hash to the same slot; listing the point twice there
+        would make a query find it twice (a double deposit)."""
+        lo = self.cell_of(p - r)
+        hi = self.cell_of(p + r)
+        slots = ti.Vector([0] * 8, ti.i32)
+        n = 0
+        for cx, cy, cz in ti.ndrange((lo.x, hi.x + 1), (lo.y, hi.y + 1), (lo.z, hi.z + 1)):
+            h = self.slot(ti.Vector([cx, cy, cz]))
+            new = True
+            for k in range(n):
+                if slots[k] == h:
+                    new = False
+            if new and n < 8:
+                slots[n] = h
+                n += 1
+        return slots, n
 
     @ti.kernel
     def _count(self, pos: ti.template(), radius: ti.template(), valid: ti.template()):
         self.cell_size[None] = ti.max(2.0 * self.max_radius[None], 1e-30)
         for i in range(self.n_points):
             if valid[i]:
-                lo, hi = self._cell_range(pos[i], radius[i])
-                for cx, cy, cz in ti.ndrange((lo.x, hi.x + 1), (lo.y, hi.y + 1), (lo.z, hi.z + 1)):
-                    ti.atomic_add(self.cell_count[self.slot(ti.Vector([cx, cy, cz]))], 1)
+                slots, n = self._slots_of(pos[i], radius[i])
+                for k in range(n):
+                    ti.atomic_add(self.cell_count[slots[k]], 1)
 
     @ti.kernel
     def _prefix_sum(self):
@@ -87,11 +103,11 @@ class HashGrid:
     def _fill(self, pos: ti.template(), radius: ti.template(), valid: ti.template()):
         for i in range(self.n_points):
             if valid[i]:
-                lo, hi = self._cell_range(pos[i], radius[i])
-                for cx, cy, cz in ti.ndrange((lo.x, hi.x + 1), (lo.y, hi.y + 1), (lo.z, hi.z + 1)):
-                    h = self.slot(ti.Vector([cx, cy, cz]))
-                    k = ti.atomic_add(self.cell_fill[h], 1)
-                    self.entries[self.cell_start[h] + k] = i
+                slots, n = self._slots_of(pos[i], radius[i])
+                for k in range(n):
+                    h = slots[k]
+                    at = ti.atomic_add(self.cell_fill[h], 1)
+                    self.entries[self.cell_start[h] + at] = i
 
     @ti.func
     def candidates(self, x):

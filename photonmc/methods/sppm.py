@@ -34,6 +34,7 @@ from ..kernels.sampling import onb, to_local, to_world, vec3
 from .base import Method
 
 FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flux
+PI = math.pi                      # use as ti.f64(PI): a bare literal is a float32 constant (default_fp)
 RR_DEPTH = 5
 NORMAL_COS_MIN = 0.1              # photon and MP surfaces must face alike (mitsuba #145 family)
 
@@ -59,7 +60,7 @@ class Sppm(Method):
         opts = self.options
         w, h = dscene.width, dscene.height
         self.n_pixels = w * h
-        self.photons_per_iteration = int(opts["photons"] or self.n_pixels)
+        self.photons_per_iteration = int(self.n_pixels if opts["photons"] is None else opts["photons"])
         self.alpha = float(opts["alpha"])
         if not 1 <= self.photons_per_iteration <= 1 << 28:
             raise SettingsError(f"--photons must be between 1 and 2^28, got {self.photons_per_iteration}")
@@ -232,7 +233,7 @@ class Sppm(Method):
                 r_new = r * ti.sqrt(n_new / (n_old + m))
                 phi = ti.cast(self.phi[i], ti.f64) * flux_scale
                 w_phi = ti.cast(self.mp_W[i], ti.f64) * phi
-                self.D[i] += w_phi / (math.pi * r * r)                  # D form (algorithms.md §1.3)
+                self.D[i] += w_phi / (ti.f64(PI) * r * r)                # D form (algorithms.md §1.3)
                 self.tau[i] = (self.tau[i] + w_phi) * (r_new * r_new) / (r * r)   # tau form, kept for the test
                 self.N[i] = n_new
                 self.R[i] = r_new

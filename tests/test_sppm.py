@@ -1,0 +1,184 @@
+"""SPPM: the hash grid, the two update forms, convergence, and numerical extremes."""
+import numpy as np
+import pytest
+import taichi as ti
+
+from photonmc import load_scene
+from photonmc.errors import SettingsError
+from photonmc.imageio import read_image, read_metadata
+from photonmc.kernels.fields import FieldGroup
+from photonmc.kernels.hashgrid import HashGrid
+from photonmc.metrics import downsample, luminance, mean_luminance
+from photonmc.render import Budget, prepare, run
+
+from .conftest import REFS, SCENES, camera_xml
+from .test_pt import furnace_expectation, furnace_xml
+
+
+def render(scene, iterations, seed=0, **options):
+    p = prepare(scene, method="sppm", seed=seed, options=options)
+    r = run(p, Budget(iterations=iterations), quiet=True)
+    p.release()
+    return r
+
+
+@ti.kernel
+def query_all(grid: ti.template(), pos: ti.template(), rad: ti.template(), valid: ti.template(),
+              x: ti.types.ndarray(dtype=ti.math.vec3, ndim=1), hits: ti.types.ndarray(dtype=ti.i32, ndim=2)):
+    for q in range(x.shape[0]):
+        first, end = grid.candidates(x[q])
+        for e in range(first, end):
+            j = grid.entries[e]
+            if valid[j] and (x[q] - pos[j]).norm_sqr() <= rad[j] * rad[j]:
+                hits[q, j] += 1
+
+
+@pytest.mark.parametrize("n", [20, 2000])
+def test_hash_grid_matches_brute_force(n):
+    """With 20 points the table has 64 slots, so one point's 8 cells often share a slot."""
+    rng = np.random.default_rng(4)
+    p = rng.uniform(-3, 3, (n, 3)).astype(np.float32)
+    r = rng.uniform(0.01, 0.4, n).astype(np.float32)
+    v = (rng.random(n) < 0.9).astype(np.int32)
+    f = FieldGroup()
+    pos, rad, valid = f.vector(3, ti.f32, n, p), f.scalar(ti.f32, n, r), f.scalar(ti.i32, n, v)
+    f.finalize()
+    grid = HashGrid(n)
+    grid.build(pos, rad, valid)
+    near = p[rng.integers(0, n, 500)]
+    x = np.concatenate([rng.uniform(-3.5, 3.5, (3000, 3)), near + rng.normal(size=(500, 3)) * 0.1]).astype(np.float32)
+    hits = np.zeros((len(x), n), np.int32)
+    query_all(grid, pos, rad, valid, x, hits)
+    d2 = ((x[:, None, :] - p[None]) ** 2).sum(-1)
+    expected = (d2 <= r[None] ** 2) & (v[None] == 1)
+    # float32 boundary cases aside, the grid finds exactly the balls that contain each point,
+    # each exactly once (a point listed twice under one hash slot would be deposited twice)
+    boundary = np.abs(d2 - r[None] ** 2) < 1e-5
+    assert hits.max() == 1
+    assert np.array_equal(hits.astype(bool) | boundary, expected | boundary)
+    assert expected.sum() > (30 if n == 20 else 1000)
+    grid.release()
+    f.release()
+
+
+def test_d_form_and_tau_form_give_the_same_image():
+    """Algebraically identical (algorithms.md §1.3); compared in float64, before output rounding."""
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 24})
+    images = []
+    for tau in (False, True):
+        p = prepare(scene, method="sppm", seed=1, options={"tau_form": tau})
+        run(p, Budget(iterations=30), quiet=True)
+        images.append(p.method.image())
+        p.release()
+    assert images[0].mean() > 0
+    np.testing.assert_allclose(images[0], images[1], rtol=1e-10, atol=1e-14)
+
+
+def test_seed_determinism_with_atomics():
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 24})
+    a = render(scene, 5, seed=3).image
+    b = render(scene, 5, seed=3).image
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("depth", [3, -1])
+def test_sphere_furnace(write_scene, depth):
+    """Inside an emitting diffuse sphere the photon density is uniform, so SPPM's density
+    estimate has no blur bias there: the analytic answer holds within noise."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    p = prepare(scene, method="sppm", max_depth=depth, options={"photons": 4096})
+    r = run(p, Budget(iterations=200), quiet=True)
+    p.release()
+    lum = luminance(r.image)
+    expected = furnace_expectation(depth)
+    spread = lum.std()
+    assert abs(lum.mean() - expected) < 5 * spread / np.sqrt(lum.size) + 0.002 * expected, lum.mean()
+    assert np.abs(lum - expected).max() < 6 * spread
+
+
+def test_error_falls_and_converges_to_mitsuba():
+    """SPPM is consistent: its error against the Mitsuba reference falls with iterations
+    (slope measured and printed), and it ends within 1 % in mean luminance."""
+    ref_path = REFS / "cornell-box-64.exr"
+    ref = read_image(ref_path)
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 64})
+    p = prepare(scene, method="sppm", seed=2)
+    checkpoints, errors = (25, 100, 400), []
+
+    def record(method, iteration, elapsed):
+        if iteration in checkpoints:
+            errors.append(np.sqrt(np.mean((luminance(method.image()) - luminance(ref)) ** 2)))
+
+    r = run(p, Budget(iterations=checkpoints[-1]), quiet=True, on_iteration=record)
+    p.release()
+    slope = np.polyfit(np.log(checkpoints), np.log(errors), 1)[0]
+    print(f"sppm RMSE {np.round(errors, 5).tolist()} at {checkpoints} iterations: slope {slope:.3f}")
+    assert errors[0] > errors[1] > errors[2]
+    assert slope < -0.3
+    assert abs(mean_luminance(r.image) / mean_luminance(ref) - 1) < 0.01
+    assert int(read_metadata(ref_path)["spp"]) >= 16384
+
+
+def _scaled_scene(write_scene, scale=1.0, radiance_scale=1.0):
+    """A small closed box with a glass sphere (a caustic) and a ceiling light."""
+    s = scale
+    return load_scene(write_scene(camera_xml(res=12, fov=70, origin=f"0,0,{2.5 * s}", target="0,0,0") + f"""
+        <shape type="cube"><boolean name="flip_normals" value="true"/>
+            <transform name="to_world"><scale x="{s}" y="{s}" z="{3 * s}"/></transform>
+            <bsdf type="diffuse"><rgb name="reflectance" value="0.6,0.5,0.4"/></bsdf></shape>
+        <shape type="sphere"><float name="radius" value="{0.4 * s}"/><point name="center" x="0" y="{-0.5 * s}" z="0"/>
+            <bsdf type="dielectric"/></shape>
+        <shape type="rectangle"><transform name="to_world"><scale value="{0.3 * s}"/><rotate x="1" angle="90"/>
+            <translate y="{0.99 * s}"/></transform>
+            <emitter type="area"><rgb name="radiance" value="{5 * radiance_scale}"/></emitter></shape>"""))
+
+
+def test_scene_scale_and_light_power_extremes(write_scene):
+    """The same scene scaled by 1e-3 and 1e3 gives the same image (radii, offsets and the
+    grid scale with it); light radiance x1e-6 and x1e6 scales the image linearly (the
+    fixed-point flux is relative to the emitted power)."""
+    base = render(_scaled_scene(write_scene), 40, seed=5).image
+    assert base.mean() > 0
+    for scale in (1e-3, 1e3):
+        img = render(_scaled_scene(write_scene, scale=scale), 40, seed=5).image
+        assert abs(img.mean() / base.mean() - 1) < 0.03
+        assert np.abs(downsample(luminance(img), 4) - downsample(luminance(base), 4)).max() < 0.25 * luminance(base).mean()
+    for k in (1e-6, 1e6):
+        img = render(_scaled_scene(write_scene, radiance_scale=k), 40, seed=5).image
+        np.testing.assert_allclose(img / k, base, rtol=1e-3, atol=1e-6 * base.max())
+
+
+def test_many_iterations_on_a_tiny_image(write_scene):
+    """10^4 iterations: radii keep shrinking without underflow, no NaN reaches the image."""
+    scene = _scaled_scene(write_scene)
+    p = prepare(scene, method="sppm", seed=1, options={"photons": 64})
+    r = run(p, Budget(iterations=10_000), quiet=True)
+    radius = p.method.R.to_numpy()
+    p.release()
+    assert np.isfinite(r.image).all() and r.image.mean() > 0
+    assert np.all(radius[radius > 0] > 0) and np.isfinite(radius).all()
+    assert r.stats["nonfinite_samples_dropped"] == 0 and r.stats["nonfinite_pixels_zeroed"] == 0
+
+
+def test_one_photon_per_iteration_and_iterations_without_deposits(write_scene):
+    scene = _scaled_scene(write_scene)
+    r = render(scene, 50, photons=1)
+    assert np.isfinite(r.image).all()
+    # Most single-photon iterations deposit nothing into a 12x12 image's few MPs.
+    assert r.stats["fraction_of_photon_paths_depositing"] < 1.0
+    assert r.stats["photons_emitted"] == 50
+
+
+@pytest.mark.parametrize("options,message", [
+    ({"photons": 0}, "--photons"), ({"alpha": 1.5}, "--alpha"), ({"radius": -1.0}, "--radius"),
+])
+def test_bad_options(options, message):
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})
+    with pytest.raises(SettingsError, match=message):
+        prepare(scene, method="sppm", options=options)
+
+
+def test_pt_rejects_photon_options():
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})
+    with pytest.raises(SettingsError, match="does not take --photons"):
+        prepare(scene, method="pt", options={"photons": 10})
