@@ -43,7 +43,48 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress output")
     r.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE",
                    help="set a scene parameter ($NAME), overriding its <default>")
+    c = sub.add_parser("converge", help="measure error against time for several methods")
+    c.add_argument("scene", help="Mitsuba 3 XML scene")
+    c.add_argument("--methods", required=True, help="comma-separated, e.g. pt,sppm")
+    c.add_argument("--reference", required=True, help="reference EXR at the scene's resolution")
+    cb = c.add_mutually_exclusive_group(required=True)
+    cb.add_argument("--time", type=float, help="render seconds per method (compilation excluded)")
+    cb.add_argument("--iterations", type=int, help="iterations per method")
+    c.add_argument("--out", default="converge-out", help="output directory (CSV, plot, table, images)")
+    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--threads", type=int)
+    c.add_argument("--max-depth", type=int)
+    c.add_argument("--photons", type=int)
+    c.add_argument("--alpha", type=float)
+    c.add_argument("--radius", type=float)
+    c.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE")
     return p
+
+
+def cmd_converge(args) -> int:
+    from . import runtime
+    from .converge import converge
+    from .methods import method_class
+    from .render import Budget
+    from .scene import load_scene
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if not methods:
+        raise PhotonmcError("--methods is empty")
+    for m in methods:
+        method_class(m)
+    if not Path(args.reference).is_file():
+        raise PhotonmcError(f"reference image '{args.reference}' not found")
+    budget = Budget(time=args.time, iterations=args.iterations)
+    scene = load_scene(args.scene, dict(args.defines))
+    runtime.init("cpu", args.threads)
+    options = {"photons": args.photons, "alpha": args.alpha, "radius": args.radius}
+    _, table = converge(scene, Path(args.scene).parent.name or args.scene, methods, args.reference, budget,
+                        args.out, seed=args.seed, options=options, max_depth=args.max_depth,
+                        log=lambda msg: print(msg, file=sys.stderr))
+    print(table)
+    print(f"wrote {args.out}/convergence.csv, convergence.png, convergence.md", file=sys.stderr)
+    return 0
 
 
 def cmd_render(args) -> int:
@@ -91,6 +132,8 @@ def main(argv=None) -> int:
     try:
         if args.command == "render":
             return cmd_render(args)
+        if args.command == "converge":
+            return cmd_converge(args)
     except PhotonmcError as e:
         print(f"photonmc: error: {e}", file=sys.stderr)
         return 2

@@ -24,6 +24,12 @@ class Film:
     def release(self):
         self.fields.release()
 
+    def reset(self):
+        self.sum.fill(0)
+        self.sum_sq.fill(0)
+        self.nonfinite.fill(0)
+        self.samples_per_pixel = 0
+
     @ti.func
     def add(self, y: ti.i32, x: ti.i32, rgb):
         finite = True

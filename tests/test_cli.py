@@ -46,6 +46,17 @@ def test_default_scene_with_no_arguments(tmp_path):
     assert (tmp_path / "render.png").is_file()
 
 
+def test_sppm_from_the_command_line(tmp_path):
+    out, stats = tmp_path / "s.exr", tmp_path / "s.json"
+    r = photonmc("render", *SMALL, "--method", "sppm", "--iterations", "3", "--photons", "500", "--alpha", "0.7",
+                 "--quiet", "--out", str(out), "--stats", str(stats))
+    assert r.returncode == 0, r.stderr
+    s = json.loads(stats.read_text())
+    assert s["method"] == "sppm" and s["photons_emitted"] == 1500 and s["alpha"] == 0.7
+    assert 0 <= s["fraction_of_photon_paths_depositing"] <= 1 and s["mean_radius"] > 0
+    assert read_image(out).mean() > 0
+
+
 def test_png_only_output(tmp_path):
     r = photonmc("render", *SMALL, "--iterations", "1", "--quiet", "--out", str(tmp_path / "a.png"))
     assert r.returncode == 0, r.stderr
@@ -61,6 +72,8 @@ BAD = {
     "zero iterations": (["render", *SMALL, "--iterations", "0"], "--iterations must be at least 1"),
     "unknown method": (["render", *SMALL, "--method", "bogus"], "unknown method 'bogus'"),
     "planned method": (["render", *SMALL, "--method", "mbe"], "not implemented yet"),
+    "photons for pt": (["render", *SMALL, "--photons", "10"], "does not take --photons"),
+    "bad alpha": (["render", *SMALL, "--method", "sppm", "--alpha", "1"], "--alpha must be in (0, 1)"),
     "negative seed": (["render", *SMALL, "--seed", "-1"], "--seed must be"),
     "zero max depth": (["render", *SMALL, "--max-depth", "0"], "--max-depth must be"),
     "zero threads": (["render", *SMALL, "--threads", "0"], "--threads must be at least 1"),

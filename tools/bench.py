@@ -6,6 +6,9 @@
    Taichi BVH against Embree (through `embreex`, if installed) on the same rays.
 2. pt: samples/s on the bundled Cornell box at 256x256 against Mitsuba 3's `path` integrator
    (if installed) on the same scene file and max_depth.
+3. sppm: photon paths/s and iteration time on the Cornell box at 512x512, one photon path
+   per pixel per iteration (SmallVCM's progressive photon mapping: about 0.75 M paths/s on
+   2 cores on a comparable Cornell box, per ../shared/peers.md).
 Compile time is excluded (a warm-up call first); each figure is the best of 3 runs.
 Needs the `tools` extra for the peers: pip install -e ".[tools]" embreex
 """
@@ -115,16 +118,43 @@ def bench_pt(iterations):
     return result
 
 
+def bench_sppm(iterations, res=512):
+    """Photon paths/s and iteration time of sppm on the Cornell box at res x res, one photon
+    path per pixel per iteration (SmallVCM's setting); the iteration includes the camera pass."""
+    from photonmc import load_scene
+    from photonmc.render import default_scene_path, prepare
+
+    scene = load_scene(default_scene_path(), {"res": res})
+    p = prepare(scene, method="sppm")
+    m = p.method
+    m.iterate()                                           # compile
+    m.reset()
+    times = []
+    for _ in range(iterations):
+        t = time.perf_counter()
+        m.iterate()
+        times.append(time.perf_counter() - t)
+    stats = m.stats()
+    p.release()
+    per_it = float(np.median(times))
+    return {"resolution": [res, res], "photons_per_iteration": m.photons_per_iteration,
+            "iteration_s_median": per_it, "photon_paths_per_s_incl_camera_pass": m.photons_per_iteration / per_it,
+            "fraction_of_photon_paths_depositing": stats["fraction_of_photon_paths_depositing"],
+            "smallvcm_ppm_reference_photon_paths_per_s": 0.75e6}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rays", type=int, default=2_000_000)
     ap.add_argument("--pt-iterations", type=int, default=64)
+    ap.add_argument("--sppm-iterations", type=int, default=10)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--json")
     args = ap.parse_args()
     from photonmc import runtime
     runtime.init("cpu", args.threads)
-    res = {"cpu_threads": args.threads or os.cpu_count(), "bvh": bench_bvh(args.rays), "pt": bench_pt(args.pt_iterations)}
+    res = {"cpu_threads": args.threads or os.cpu_count(), "bvh": bench_bvh(args.rays), "pt": bench_pt(args.pt_iterations),
+           "sppm": bench_sppm(args.sppm_iterations)}
     text = json.dumps(res, indent=2)
     print(text)
     if args.json:

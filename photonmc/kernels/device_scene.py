@@ -270,6 +270,21 @@ class DeviceScene:
         return self.trace(o, d, dist, True).kind != MISS
 
     @ti.func
+    def visible(self, p, n_p, q, n_q) -> ti.i32:
+        """Whether surface points p and q (normals n_p, n_q) see each other. Both ends are
+        pushed off their surfaces toward the other and the ray is aimed between the pushed
+        ends; aiming from a pushed origin along the unpushed direction would cross a surface
+        seen at a grazing angle early by eps/cos and report it as its own occluder."""
+        a = self.spawn(p, n_p, q - p)
+        b = self.spawn(q, n_q, p - q)
+        d = b - a
+        dist = d.norm()
+        result = 1
+        if dist > 0.0:
+            result = not self.occluded(a, d / dist, dist * (1.0 - 1e-4))
+        return result
+
+    @ti.func
     def surface(self, o, d, hit):
         """Position, normals, material and emitter at a hit. The geometric normal is turned
         to the shading normal's side; sidedness (front/back) follows the shading normal."""

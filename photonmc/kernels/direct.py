@@ -24,8 +24,7 @@ def next_event(sc: ti.template(), p, ng, b: ti.i32, wo_l, n, t1, t2, state: ti.t
         if cos_l > 0.0:
             f = sc.bsdf_eval(b, wo_l, wi_l)
             if f.max() > 0.0:
-                o = sc.spawn(p, ng, wi)
-                if not sc.occluded(o, wi, dist * (1.0 - 1e-4) - 2.0 * sc.ray_eps):
+                if sc.visible(p, ng, ls.p, ls.n):
                     pdf_light_w = ls.pdf_a * dist2 / cos_l
                     w = 1.0
                     if ti.static(use_mis):

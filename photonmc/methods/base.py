@@ -56,6 +56,16 @@ class Method:
     def method_stats(self) -> dict:
         return {}
 
+    def reset(self) -> None:
+        """Forget all accumulated work but keep compiled kernels (used to exclude compile
+        time from measurements: iterate once, reset, then time)."""
+        self.iterations = 0
+        self.work_done = 0
+        self._reset()
+
+    def _reset(self) -> None:
+        raise NotImplementedError
+
     def release(self) -> None:
         """Free the method's device memory; override when the method owns fields."""
 

@@ -41,6 +41,9 @@ class PathTracer(Method):
     def release(self):
         self.film.release()
 
+    def _reset(self):
+        self.film.reset()
+
     def standard_error(self):
         return self.film.standard_error()
 

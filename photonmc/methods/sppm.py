@@ -109,6 +109,11 @@ class Sppm(Method):
         self.grid.release()
         self.fields.release()
 
+    def _reset(self):
+        for f in (self.R, self.N, self.D, self.tau, self.Ld, self.M, self.phi, self.counters, self.mp_valid):
+            f.fill(0)
+        self.photons_emitted = 0
+
     # -- the iteration -----------------------------------------------------------------
     def _iterate(self):
         it = self.iterations

@@ -1,0 +1,169 @@
+"""Error against time for several methods on one scene: `photonmc converge`.
+
+Each method runs in this process after a warm-up iteration (then reset), so kernel
+compilation is excluded. At checkpoints spaced geometrically in time (or iterations) the
+current image is compared with the reference; the comparison's own cost is excluded from
+the clock. Writes convergence.csv, convergence.png (log-log error against time) and
+convergence.md (final figures and the equal-time ranking), plus each method's final image.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import imageio, metrics
+from .errors import PhotonmcError
+from .render import Budget, prepare
+
+RELMSE_EPS = 1e-2          # relMSE = mean(d^2 / (ref^2 + eps)), eps in the image's units
+CHECKPOINT_GROWTH = 1.5
+
+
+@dataclass
+class Checkpoint:
+    method: str
+    elapsed: float
+    iterations: int
+    rmse: float
+    relmse: float
+    bias: float
+
+
+def _schedule(total: float, first: float):
+    """Geometric checkpoints from `first` up to `total` (inclusive)."""
+    points, t = [], first
+    while t < total:
+        points.append(t)
+        t *= CHECKPOINT_GROWTH
+    return points + [total]
+
+
+def measure(scene, method: str, reference: np.ndarray, budget: Budget, seed: int = 0, options=None,
+            max_depth=None) -> tuple[list[Checkpoint], np.ndarray, dict]:
+    p = prepare(scene, method=method, seed=seed, options=options, max_depth=max_depth)
+    try:
+        m = p.method
+        h, w = p.dscene.height, p.dscene.width
+        if reference.shape[:2] != (h, w):
+            raise PhotonmcError(f"reference is {reference.shape[1]}x{reference.shape[0]} but the scene renders "
+                                f"{w}x{h} (set the resolution with -D, e.g. -D res={reference.shape[1]})")
+        m.iterate()          # compiles every kernel
+        m.reset()
+        by_time = budget.time is not None
+        total = budget.time if by_time else float(budget.iterations)
+        pending = _schedule(total, total / 64 if by_time else 1.0)
+        points, clock = [], 0.0
+        while True:
+            t = time.perf_counter()
+            m.iterate()
+            clock += time.perf_counter() - t
+            progress = clock if by_time else m.iterations
+            if pending and progress >= pending[0] - 1e-12:
+                while pending and progress >= pending[0] - 1e-12:
+                    pending.pop(0)
+                img = m.image()
+                points.append(Checkpoint(method, clock, m.iterations, metrics.rmse(img, reference),
+                                         metrics.relmse(img, reference, RELMSE_EPS),
+                                         metrics.mean_luminance_bias(img, reference)))
+            if not pending:
+                break
+        return points, m.image().astype(np.float32), m.stats()
+    finally:
+        p.release()
+
+
+def slope(points: list[Checkpoint], key="rmse") -> float | None:
+    """Log-log slope of error against time over the second half of the checkpoints."""
+    pts = [p for p in points if getattr(p, key) > 0 and p.elapsed > 0]
+    pts = pts[len(pts) // 2:]
+    if len(pts) < 2:
+        return None
+    x = np.log([p.elapsed for p in pts])
+    y = np.log([getattr(p, key) for p in pts])
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def write_csv(path: Path, points: list[Checkpoint]):
+    with open(path, "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(["method", "elapsed_s", "iterations", "rmse", "relmse", "mean_luminance_bias"])
+        for p in points:
+            out.writerow([p.method, f"{p.elapsed:.6g}", p.iterations, f"{p.rmse:.6g}", f"{p.relmse:.6g}",
+                          f"{p.bias:.6g}"])
+
+
+def write_plot(path: Path, by_method: dict, title: str):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for name, pts in by_method.items():
+        t = [p.elapsed for p in pts]
+        axes[0].loglog(t, [p.rmse for p in pts], "o-", label=name, markersize=3)
+        axes[1].loglog(t, [p.relmse for p in pts], "o-", label=name, markersize=3)
+    axes[0].set_ylabel("RMSE")
+    axes[1].set_ylabel(f"relMSE (eps={RELMSE_EPS:g})")
+    for ax in axes:
+        ax.set_xlabel("render time [s] (compilation excluded)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_table(path: Path, by_method: dict, header: str) -> str:
+    finals = {name: pts[-1] for name, pts in by_method.items() if pts}
+    # Equal-time ranking: every method's error interpolated (log-log) at the shortest final time.
+    t_eq = min(p.elapsed for p in finals.values())
+    at_eq = {name: _interpolate(pts, t_eq) for name, pts in by_method.items()}
+    lines = [header, "",
+             "| method | time [s] | iterations | RMSE | relMSE | mean-luminance bias | RMSE slope vs time |",
+             "|---|---|---|---|---|---|---|"]
+    for name, p in finals.items():
+        s = slope(by_method[name])
+        lines.append(f"| {name} | {p.elapsed:.2f} | {p.iterations} | {p.rmse:.4g} | {p.relmse:.4g} | "
+                     f"{100 * p.bias:+.2f} % | {'n/a' if s is None else f'{s:.2f}'} |")
+    lines += ["", f"Equal-time ranking at {t_eq:.2f} s (RMSE, lower is better):", ""]
+    for rank, (name, e) in enumerate(sorted(at_eq.items(), key=lambda kv: kv[1]), 1):
+        lines.append(f"{rank}. {name}: RMSE {e:.4g}")
+    text = "\n".join(lines) + "\n"
+    path.write_text(text)
+    return text
+
+
+def _interpolate(points: list[Checkpoint], t: float) -> float:
+    ts = np.array([p.elapsed for p in points])
+    es = np.array([p.rmse for p in points])
+    if t <= ts[0]:
+        return float(es[0])
+    return float(math.exp(np.interp(math.log(t), np.log(ts), np.log(np.maximum(es, 1e-300)))))
+
+
+def converge(scene, scene_label: str, methods: list[str], reference_path, budget: Budget, out_dir, seed=0,
+             options=None, max_depth=None, log=print):
+    reference = imageio.read_image(reference_path)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    by_method, all_points = {}, []
+    for name in methods:
+        log(f"converge: {name} ...")
+        opts = {k: v for k, v in (options or {}).items() if v is not None} if name != "pt" else {}
+        points, image, stats = measure(scene, name, reference, budget, seed=seed, options=opts, max_depth=max_depth)
+        by_method[name] = points
+        all_points += points
+        imageio.write_image(out_dir / f"{name}.exr", image, {"method": name, "seed": seed,
+                                                             "iterations": stats["iterations"]})
+    write_csv(out_dir / "convergence.csv", all_points)
+    write_plot(out_dir / "convergence.png", by_method, f"{scene_label} vs {Path(reference_path).name}")
+    budget_text = f"{budget.time:g} s" if budget.time is not None else f"{budget.iterations} iterations"
+    text = write_table(out_dir / "convergence.md", by_method,
+                       f"## {scene_label}: {', '.join(methods)} ({budget_text} each, seed {seed})")
+    return by_method, text

@@ -1,0 +1,45 @@
+"""`photonmc converge`: CSV, plot and table for two methods."""
+import csv
+
+import numpy as np
+
+from photonmc.cli import main
+from photonmc.imageio import read_image, write_image
+from photonmc.render import Budget, prepare, run
+
+from .conftest import SCENES
+
+CORNELL = str(SCENES / "cornell-box" / "scene.xml")
+
+
+def test_converge_writes_csv_plot_and_table(tmp_path, capsys):
+    from photonmc import load_scene
+    p = prepare(load_scene(CORNELL, {"res": 16}), method="pt", seed=11)
+    ref = run(p, Budget(iterations=512), quiet=True).image
+    p.release()
+    write_image(tmp_path / "ref.exr", ref)
+    out = tmp_path / "conv"
+    rc = main(["converge", CORNELL, "-D", "res=16", "--methods", "pt,sppm", "--reference", str(tmp_path / "ref.exr"),
+               "--iterations", "16", "--out", str(out)])
+    assert rc == 0
+    rows = list(csv.DictReader(open(out / "convergence.csv")))
+    assert {r["method"] for r in rows} == {"pt", "sppm"}
+    for method in ("pt", "sppm"):
+        mine = [r for r in rows if r["method"] == method]
+        assert [int(r["iterations"]) for r in mine][-1] == 16
+        assert all(float(r["rmse"]) > 0 and float(r["elapsed_s"]) > 0 for r in mine)
+        errors = [float(r["rmse"]) for r in mine]
+        assert errors[-1] < errors[0]             # more work, less error
+        assert read_image(out / f"{method}.exr").shape == (16, 16, 3)
+    assert (out / "convergence.png").stat().st_size > 1000
+    table = (out / "convergence.md").read_text()
+    assert "Equal-time ranking" in table and "| pt |" in table and "| sppm |" in table
+    assert "Equal-time ranking" in capsys.readouterr().out
+
+
+def test_converge_rejects_a_reference_of_the_wrong_size(tmp_path, capsys):
+    write_image(tmp_path / "ref.exr", np.zeros((8, 8, 3)))
+    rc = main(["converge", CORNELL, "-D", "res=16", "--methods", "pt", "--reference", str(tmp_path / "ref.exr"),
+               "--iterations", "2", "--out", str(tmp_path / "c")])
+    assert rc == 2
+    assert "reference is 8x8 but the scene renders 16x16" in capsys.readouterr().err
