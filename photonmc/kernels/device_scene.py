@@ -285,6 +285,16 @@ class DeviceScene:
         return result
 
     @ti.func
+    def _tri_shading_normal(self, i: ti.i32, b1: ti.f32, b2: ti.f32, fallback):
+        """Interpolated vertex normal of triangle i at barycentrics (b1, b2)."""
+        ns = (1.0 - b1 - b2) * self.tri_n0[i] + b1 * self.tri_n1[i] + b2 * self.tri_n2[i]
+        length = ns.norm()
+        result = fallback
+        if length > 0.0:
+            result = ns / length
+        return result
+
+    @ti.func
     def surface(self, o, d, hit):
         """Position, normals, material and emitter at a hit. The geometric normal is turned
         to the shading normal's side; sidedness (front/back) follows the shading normal."""
@@ -296,13 +306,7 @@ class DeviceScene:
             e2 = self.tri_e2[i]
             s.p = self.tri_v0[i] + hit.b1 * e1 + hit.b2 * e2
             ng = e1.cross(e2).normalized()
-            ns = ((1.0 - hit.b1 - hit.b2) * self.tri_n0[i] + hit.b1 * self.tri_n1[i]
-                  + hit.b2 * self.tri_n2[i])
-            ns_len = ns.norm()
-            if ns_len > 0.0:
-                ns = ns / ns_len
-            else:
-                ns = ng
+            ns = self._tri_shading_normal(i, hit.b1, hit.b2, ng)
             if ng.dot(ns) < 0.0:
                 ng = -ng
             s.ng = ng
@@ -393,8 +397,7 @@ class DeviceScene:
         if self.light_kind[lo] == 0:
             b1, b2 = uniform_triangle(u1, u2)
             ls.p = self.tri_v0[prim] + b1 * self.tri_e1[prim] + b2 * self.tri_e2[prim]
-            ns = ((1.0 - b1 - b2) * self.tri_n0[prim] + b1 * self.tri_n1[prim] + b2 * self.tri_n2[prim])
-            ls.n = ns.normalized()
+            ls.n = self._tri_shading_normal(prim, b1, b2, self.tri_e1[prim].cross(self.tri_e2[prim]).normalized())
             emitter = self.tri_emitter[prim]
         elif ti.static(self.has_spheres):
             n = uniform_sphere(u1, u2)
