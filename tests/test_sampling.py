@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from photonmc.kernels import bsdf, rng
+from photonmc.kernels import bsdf, rng, sampling
 from photonmc.scene.scene import CONDUCTOR, DIELECTRIC, DIFFUSE
 
 KINDS = (DIFFUSE, CONDUCTOR, DIELECTRIC)
@@ -183,3 +183,21 @@ def test_rng_uniform_and_independent_streams():
     assert np.array_equal(out, again)
     draw(4096, 64, 12346, again)
     assert not np.array_equal(out, again)
+
+
+@ti.kernel
+def heuristic(a: ti.types.ndarray(dtype=ti.f32, ndim=1), b: ti.types.ndarray(dtype=ti.f32, ndim=1),
+              w: ti.types.ndarray(dtype=ti.f32, ndim=1)):
+    for i in range(a.shape[0]):
+        w[i] = sampling.power_heuristic(a[i], b[i])
+
+
+def test_power_heuristic_at_extreme_pdfs():
+    """A light sample seen at a grazing angle has a solid-angle pdf whose square overflows
+    float32; the weight must stay finite (4 NaN samples in 49 M on the caustic scene before)."""
+    big, inf = 1e30, float("inf")
+    a = np.array([1, 3, 0, big, 1, big, inf, inf, 2e19], np.float32)
+    b = np.array([1, 1, 5, 1, big, big, 1, inf, 1e19], np.float32)
+    w = np.zeros(len(a), np.float32)
+    heuristic(a, b, w)
+    np.testing.assert_allclose(w, [0.5, 0.9, 0.0, 1.0, 0.0, 0.5, 1.0, 0.5, 0.8], rtol=1e-6, atol=1e-30)

@@ -96,12 +96,20 @@ def test_sphere_furnace(write_scene, depth):
     assert np.abs(lum - expected).max() < 6 * spread
 
 
-def test_error_falls_and_converges_to_mitsuba():
+# Largest acceptable log-log slope of RMSE against iterations. On the smooth Cornell box the
+# error is variance-dominated (about -0.5 early, -1/3 asymptotically for alpha = 2/3). At the
+# caustic's sharp edges density-estimation bias is proportional to R, which shrinks as
+# N^(-(1-alpha)/2) = N^(-1/6): the slope there tends to -1/6 (measured -0.23).
+MAX_SLOPE = {"cornell-box": -0.3, "caustic": -0.15}
+
+
+@pytest.mark.parametrize("name", sorted(MAX_SLOPE))
+def test_error_falls_and_converges_to_mitsuba(name):
     """SPPM is consistent: its error against the Mitsuba reference falls with iterations
     (slope measured and printed), and it ends within 1 % in mean luminance."""
-    ref_path = REFS / "cornell-box-64.exr"
+    ref_path = REFS / f"{name}-64.exr"
     ref = read_image(ref_path)
-    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 64})
+    scene = load_scene(SCENES / name / "scene.xml", {"res": 64})
     p = prepare(scene, method="sppm", seed=2)
     checkpoints, errors = (25, 100, 400), []
 
@@ -112,9 +120,9 @@ def test_error_falls_and_converges_to_mitsuba():
     r = run(p, Budget(iterations=checkpoints[-1]), quiet=True, on_iteration=record)
     p.release()
     slope = np.polyfit(np.log(checkpoints), np.log(errors), 1)[0]
-    print(f"sppm RMSE {np.round(errors, 5).tolist()} at {checkpoints} iterations: slope {slope:.3f}")
+    print(f"sppm {name} RMSE {np.round(errors, 5).tolist()} at {checkpoints} iterations: slope {slope:.3f}")
     assert errors[0] > errors[1] > errors[2]
-    assert slope < -0.3
+    assert slope < MAX_SLOPE[name]
     assert abs(mean_luminance(r.image) / mean_luminance(ref) - 1) < 0.01
     assert int(read_metadata(ref_path)["spp"]) >= 16384
 

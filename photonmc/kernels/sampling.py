@@ -69,9 +69,13 @@ def uniform_sphere(u1: ti.f32, u2: ti.f32):
 
 @ti.func
 def power_heuristic(pdf_a: ti.f32, pdf_b: ti.f32) -> ti.f32:
-    a2 = pdf_a * pdf_a
-    b2 = pdf_b * pdf_b
+    """a^2 / (a^2 + b^2) in ratio form: a light sample seen at a grazing angle has a solid-
+    angle pdf beyond 1e19 whose square overflows float32 (inf/inf = NaN)."""
     w = 0.0
-    if a2 > 0.0:
-        w = a2 / (a2 + b2)
+    if pdf_a > 0.0:
+        if pdf_a == ti.math.inf:
+            w = 1.0 if pdf_b < ti.math.inf else 0.5
+        else:
+            r = pdf_b / pdf_a
+            w = 1.0 / (1.0 + r * r)
     return w
