@@ -60,9 +60,9 @@ class DeviceScene:
         v = scene.tri_vertices[order]
         n_tri = len(order)
         self.n_tri = n_tri
-        self.tri_v0 = self.fields.vector(3, ti.f32, n_tri, v[:, 0])
-        self.tri_e1 = self.fields.vector(3, ti.f32, n_tri, v[:, 1] - v[:, 0])
-        self.tri_e2 = self.fields.vector(3, ti.f32, n_tri, v[:, 2] - v[:, 0])
+        # What the intersection test reads, stored per triangle (one cache line).
+        self.tri_v0, self.tri_e1, self.tri_e2 = self.fields.interleaved(
+            n_tri, [(3, ti.f32, v[:, 0]), (3, ti.f32, v[:, 1] - v[:, 0]), (3, ti.f32, v[:, 2] - v[:, 0])])
         nrm = scene.tri_normals[order]
         self.tri_n0 = self.fields.vector(3, ti.f32, n_tri, nrm[:, 0])
         self.tri_n1 = self.fields.vector(3, ti.f32, n_tri, nrm[:, 1])
@@ -72,10 +72,9 @@ class DeviceScene:
         self.tri_slot_of = np.empty(n_tri, np.int64)      # original triangle -> BVH slot
         self.tri_slot_of[order] = np.arange(n_tri)
         n_nodes = bvh.node_count
-        self.node_min = self.fields.vector(3, ti.f32, n_nodes, bvh.bmin)
-        self.node_max = self.fields.vector(3, ti.f32, n_nodes, bvh.bmax)
-        self.node_right_or_first = self.fields.scalar(ti.i32, n_nodes, bvh.right_or_first)
-        self.node_count = self.fields.scalar(ti.i32, n_nodes, bvh.count)
+        self.node_min, self.node_max, self.node_right_or_first, self.node_count = self.fields.interleaved(
+            n_nodes, [(3, ti.f32, bvh.bmin), (3, ti.f32, bvh.bmax), (None, ti.i32, bvh.right_or_first),
+                      (None, ti.i32, bvh.count)])
         if bvh.depth > STACK_SIZE - 2:
             raise SceneError(f"{scene.path}: the BVH over {n_tri} triangles is {bvh.depth} levels deep, more than "
                              f"the traversal stack of {STACK_SIZE} holds (highly clustered geometry?)")
@@ -221,6 +220,7 @@ class DeviceScene:
                     dd[k] = 1e-30
             inv_d = 1.0 / dd
             stack = ti.Vector([0] * STACK_SIZE, ti.i32)
+            stack_t = ti.Vector([0.0] * STACK_SIZE, ti.f32)   # entry distance of each pushed node
             sp = 0
             node = 0
             if self._box_entry(0, o, inv_d, hit.t) == ti.math.inf:
@@ -235,31 +235,33 @@ class DeviceScene:
                     if ti.static(any_hit):
                         if hit.kind != MISS:
                             sp = 0
-                    if sp > 0:
-                        sp -= 1
-                        node = stack[sp]
                 else:
                     left = node + 1
                     right = self.node_right_or_first[node]
                     tl = self._box_entry(left, o, inv_d, hit.t)
                     tr = self._box_entry(right, o, inv_d, hit.t)
+                    node = -1
                     if tl == ti.math.inf and tr == ti.math.inf:
-                        node = -1
-                        if sp > 0:
-                            sp -= 1
-                            node = stack[sp]
+                        pass
                     elif tr == ti.math.inf:
                         node = left
                     elif tl == ti.math.inf:
                         node = right
                     elif tl <= tr:
                         stack[sp] = right
+                        stack_t[sp] = tr
                         sp += 1
                         node = left
                     else:
                         stack[sp] = left
+                        stack_t[sp] = tl
                         sp += 1
                         node = right
+                # Next: pop the nearest pending node that may still hold a closer hit.
+                while node < 0 and sp > 0:
+                    sp -= 1
+                    if stack_t[sp] < hit.t:
+                        node = stack[sp]
         if ti.static(self.has_spheres):
             for i in range(self.n_spheres):
                 self._sphere(i, o, d, hit)

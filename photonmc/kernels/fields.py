@@ -25,6 +25,18 @@ class FieldGroup:
             self._builder.dense(axes, shape).place(field)
         return field
 
+    def interleaved(self, n: int, specs):
+        """Fields of n elements stored element by element (array of structures), for data a
+        kernel reads together (a BVH node's bounds and links, a triangle's vertex and edges).
+        specs: list of (components or None for a scalar, dtype, values)."""
+        fields = []
+        for comps, dtype, values in specs:
+            f = ti.field(dtype) if comps is None else ti.Vector.field(comps, dtype)
+            fields.append(f)
+            self._queue(f, values, dtype)
+        self._builder.dense(ti.i, max(int(n), 1)).place(*fields)
+        return fields
+
     def scalar(self, dtype, shape=(), values=None):
         f = self._place(ti.field(dtype), shape)
         self._queue(f, values, dtype)
