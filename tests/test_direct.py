@@ -4,7 +4,6 @@ Found by comparing with Mitsuba: shadow rays from an offset origin aimed along t
 unoffset direction met a tilted light early (eps/cos) and counted it as its own occluder,
 darkening the floor up to 100 % where the light was seen at a grazing angle."""
 import numpy as np
-import pytest
 import taichi as ti
 
 from photonmc import load_scene

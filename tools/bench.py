@@ -109,7 +109,7 @@ def bench_pt(iterations):
                 ms = mi.load_file(str(path))
                 np.array(mi.render(ms, spp=4))            # compile / warm up
                 spp = 64
-                secs = best_of(lambda: np.array(mi.render(ms, spp=spp, seed=1)))   # forces lazy llvm evaluation
+                secs = best_of(lambda ms=ms, spp=spp: np.array(mi.render(ms, spp=spp, seed=1)))   # forces lazy llvm evaluation
                 result[f"mitsuba_{variant}_samples_per_s"] = w * h * spp / secs
             except Exception as e:   # noqa: BLE001 - a missing variant is reported, not fatal
                 result[f"mitsuba_{variant}_samples_per_s"] = f"unavailable: {e}"[:120]

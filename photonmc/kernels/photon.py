@@ -15,7 +15,7 @@ import math
 
 import taichi as ti
 
-from .sampling import cosine_hemisphere, onb, to_local, to_world, vec3
+from .sampling import cosine_hemisphere, onb, to_local, to_world
 
 LIGHT_DIMS = 5
 BOUNCE_DIMS = 4
