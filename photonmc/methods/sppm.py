@@ -100,7 +100,7 @@ class Sppm(Method):
         # Per-iteration accumulators (fixed point) and counters.
         self.M = f.scalar(ti.i64, n)
         self.phi = f.vector(3, ti.i64, n)
-        self.counters = f.scalar(ti.i64, 4)      # 0: paths used, 1: non-finite dropped
+        self.counters = f.scalar(ti.i64, 2)      # 0: photon paths that deposited, 1: non-finite direct samples
         f.finalize()
         self.fields = f
         self.grid = HashGrid(n)
