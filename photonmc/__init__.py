@@ -3,4 +3,4 @@ from .errors import PhotonmcError, SceneError, SettingsError
 from .scene import load_scene
 
 __version__ = "0.1.0"
-__all__ = ["load_scene", "PhotonmcError", "SceneError", "SettingsError", "__version__"]
+__all__ = ["PhotonmcError", "SceneError", "SettingsError", "__version__", "load_scene"]

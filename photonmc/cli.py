@@ -33,11 +33,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--threads", type=int, help="CPU threads (default: all cores)")
     r.add_argument("--max-depth", type=int, help="override the scene's max_depth (Mitsuba meaning)")
     r.add_argument("--stats", metavar="PATH.json", help="write render statistics as JSON")
-    pm = r.add_argument_group("photon mapping (sppm)")
+    pm = r.add_argument_group("photon mapping (sppm, visibility, spatial-tf)")
     pm.add_argument("--photons", type=int, help="photon paths per iteration (default: one per pixel)")
     pm.add_argument("--alpha", type=float, help="fraction of new photons kept by the radius update (default 2/3)")
     pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
                                                  "(default: 2 pixel footprints at each pixel's first hit)")
+    _add_guiding_options(r)
     r.add_argument("--checkpoint", type=float, default=60.0, metavar="SECONDS",
                    help="also write the image every SECONDS while rendering (0: only at the end; default 60)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
@@ -57,8 +58,29 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--photons", type=int)
     c.add_argument("--alpha", type=float)
     c.add_argument("--radius", type=float)
+    _add_guiding_options(c)
     c.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE")
     return p
+
+
+def _add_guiding_options(parser):
+    g = parser.add_argument_group("Markov-chain photon guiding (visibility, spatial-tf)")
+    g.add_argument("--chains", type=int, help="parallel Markov chains (default: photons per iteration / 32)")
+    g.add_argument("--target-acceptance", type=float,
+                   help="acceptance rate the mutation size adapts to (default 0.234)")
+    g.add_argument("--proposal-failures", choices=["keep", "drop"],
+                   help="keep (default): a rejected proposal repeats the current state, as Metropolis-Hastings "
+                        "requires; drop: the remedy of Zeng & Wei 2019, which is biased (docs/guiding.md)")
+    g.add_argument("--expected-values", action="store_true", default=None,
+                   help="splat proposals with their acceptance probability (Rao-Blackwellised)")
+    g.add_argument("--path-target", choices=["max", "sum"],
+                   help="spatial-tf: a path's target is the max (default) or sum of the importance of the points it hits")
+
+
+def _method_options(args) -> dict:
+    return {"photons": args.photons, "alpha": args.alpha, "radius": args.radius, "chains": args.chains,
+            "target_acceptance": args.target_acceptance, "proposal_failures": args.proposal_failures,
+            "expected_values": args.expected_values, "path_target": args.path_target}
 
 
 def cmd_converge(args) -> int:
@@ -78,7 +100,7 @@ def cmd_converge(args) -> int:
     budget = Budget(time=args.time, iterations=args.iterations)
     scene = load_scene(args.scene, dict(args.defines))
     runtime.init("cpu", args.threads)
-    options = {"photons": args.photons, "alpha": args.alpha, "radius": args.radius}
+    options = _method_options(args)
     _, table = converge(scene, Path(args.scene).parent.name or args.scene, methods, args.reference, budget,
                         args.out, seed=args.seed, options=options, max_depth=args.max_depth,
                         log=lambda msg: print(msg, file=sys.stderr))
@@ -97,7 +119,7 @@ def cmd_render(args) -> int:
     if not (args.checkpoint >= 0):
         raise PhotonmcError(f"--checkpoint must be >= 0 seconds, got {args.checkpoint}")
     budget = Budget(time=args.time, iterations=args.iterations)
-    options = {"photons": args.photons, "alpha": args.alpha, "radius": args.radius}
+    options = _method_options(args)
     prepared = prepare(args.scene, method=args.method, seed=args.seed, max_depth=args.max_depth,
                        arch=args.arch, threads=args.threads, options=options, params=dict(args.defines))
     for w in prepared.scene.warnings:

@@ -18,6 +18,7 @@ import numpy as np
 
 from . import imageio, metrics
 from .errors import PhotonmcError
+from .methods import method_class
 from .render import Budget, prepare
 
 RELMSE_EPS = 1e-2          # relMSE = mean(d^2 / (ref^2 + eps)), eps in the image's units
@@ -155,7 +156,9 @@ def converge(scene, scene_label: str, methods: list[str], reference_path, budget
     by_method, all_points = {}, []
     for name in methods:
         log(f"converge: {name} ...")
-        opts = {k: v for k, v in (options or {}).items() if v is not None} if name != "pt" else {}
+        # each method takes the options it knows (e.g. --chains goes to the guided methods only)
+        known = method_class(name).OPTIONS
+        opts = {k: v for k, v in (options or {}).items() if v is not None and k in known}
         points, image, stats = measure(scene, name, reference, budget, seed=seed, options=opts, max_depth=max_depth)
         by_method[name] = points
         all_points += points

@@ -11,9 +11,9 @@ import os
 
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")   # keep Taichi's banner out of user output
 
-import taichi as ti  # noqa: E402
+import taichi as ti
 
-from .errors import SettingsError  # noqa: E402
+from .errors import SettingsError
 
 _current: tuple | None = None
 ARCHES = {"cpu": "cpu", "cuda": "cuda", "vulkan": "vulkan"}

@@ -21,7 +21,7 @@ class FieldGroup:
         if shape == ():
             self._builder.place(field)
         else:
-            axes = (ti.i, ti.ij, ti.ijk)[len(shape) - 1]
+            axes = (ti.i, ti.ij, ti.ijk, ti.ijkl)[len(shape) - 1]
             self._builder.dense(axes, shape).place(field)
         return field
 

@@ -10,6 +10,8 @@ A `source` object supplies coordinates through `source.get(key, dim)`: a hash fo
 photon tracing, a chain's stored state for MCMC. A `visitor` receives every photon vertex
 on a non-delta surface reached after at least two segments (direct light is computed by
 next-event estimation from the camera side) and returns whether it used it.
+trace_photon returns (used, dims): dims bounds the coordinates the path read, which lets a
+Markov chain store only that prefix of u.
 """
 import math
 
@@ -29,8 +31,9 @@ def dimensions(max_segments: int) -> int:
 
 @ti.func
 def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.template(), vkey, max_segments: ti.i32):
-    """Trace one photon path; returns 1 if the visitor used any of its vertices."""
+    """Trace one photon path; returns (1 if the visitor used any vertex, coordinates read)."""
     used = 0
+    dims = LIGHT_DIMS
     ls = sc.sample_light(source.get(key, 0), source.get(key, 1), source.get(key, 2))
     t1, t2 = onb(ls.n)
     d = to_world(cosine_hemisphere(source.get(key, 3), source.get(key, 4)), t1, t2, ls.n)
@@ -53,6 +56,7 @@ def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.temp
         if segments >= max_segments:
             break
         base = LIGHT_DIMS + BOUNCE_DIMS * (segments - 1)
+        dims = base + BOUNCE_DIMS
         f1, f2 = onb(n)
         bs = sc.bsdf_sample(b, to_local(wi, f1, f2, n), source.get(key, base), source.get(key, base + 1),
                             source.get(key, base + 2), False)
@@ -65,4 +69,4 @@ def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.temp
         beta *= bs.weight / q
         d = to_world(bs.wi, f1, f2, n)
         o = sc.spawn(s.p, s.ng, d)
-    return used
+    return used, dims

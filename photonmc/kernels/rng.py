@@ -21,12 +21,17 @@ def seed(a: ti.u32, b: ti.u32, c: ti.u32) -> ti.u32:
 
 
 @ti.func
-def next_float(state: ti.template()) -> ti.f32:
-    """Uniform float in [0, 1); advances `state` in place."""
+def next_u32(state: ti.template()) -> ti.u32:
+    """Uniform 32-bit integer; advances `state` in place."""
     state = state * ti.u32(747796405) + ti.u32(2891336453)
     word = ((state >> ((state >> 28) + ti.u32(4))) ^ state) * ti.u32(277803737)
-    x = (word >> 22) ^ word
-    return ti.cast(x >> 8, ti.f32) * (1.0 / 16777216.0)
+    return (word >> 22) ^ word
+
+
+@ti.func
+def next_float(state: ti.template()) -> ti.f32:
+    """Uniform float in [0, 1); advances `state` in place."""
+    return ti.cast(next_u32(state) >> 8, ti.f32) * (1.0 / 16777216.0)
 
 
 @ti.func

@@ -6,6 +6,7 @@ from .base import Method, MethodSettings
 
 # All methods photonmc is designed to offer; those not yet built are refused by name.
 PLANNED = ("pt", "sppm", "visibility", "spatial-tf", "vcm", "mbe")
+AVAILABLE = ("pt", "sppm", "visibility", "spatial-tf")
 
 
 def method_class(name: str):
@@ -15,9 +16,15 @@ def method_class(name: str):
     if name == "sppm":
         from .sppm import Sppm
         return Sppm
+    if name == "visibility":
+        from .guided import Visibility
+        return Visibility
+    if name == "spatial-tf":
+        from .guided import SpatialTarget
+        return SpatialTarget
     if name in PLANNED:
         raise SettingsError(f"method '{name}' is not implemented yet in this version of photonmc "
-                            f"(available: pt, sppm)")
+                            f"(available: {', '.join(AVAILABLE)})")
     raise SettingsError(f"unknown method '{name}' (choose from {', '.join(PLANNED)})")
 
 
@@ -25,4 +32,4 @@ def create(name: str, dscene, settings: MethodSettings) -> Method:
     return method_class(name)(dscene, settings)
 
 
-__all__ = ["Method", "MethodSettings", "create", "method_class", "PLANNED"]
+__all__ = ["PLANNED", "Method", "MethodSettings", "create", "method_class"]

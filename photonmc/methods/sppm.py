@@ -54,6 +54,7 @@ class Sppm(Method):
     work_unit = "photons"
     default_iterations = 100
     OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False}
+    n_levels = 1          # flux accumulators per measurement point (one per Markov-chain level)
 
     def __init__(self, dscene, settings):
         super().__init__(dscene, settings)
@@ -99,7 +100,8 @@ class Sppm(Method):
         self.Ld = f.vector(3, ti.f64, n)
         # Per-iteration accumulators (fixed point) and counters.
         self.M = f.scalar(ti.i64, n)
-        self.phi = f.vector(3, ti.i64, n)
+        self.phi = f.vector(3, ti.i64, (self.n_levels, n))
+        self.level_scale = f.scalar(ti.f64, self.n_levels)     # fixed point -> flux, per level
         self.counters = f.scalar(ti.i64, 2)      # 0: photon paths that deposited, 1: non-finite direct samples
         f.finalize()
         self.fields = f
@@ -120,7 +122,8 @@ class Sppm(Method):
         self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle)
         self.grid.build(self.mp_p, self.mp_radius, self.mp_valid)
         self._photon_pass(self.seed_u32, it, self.photons_per_iteration, self.max_photon_segments)
-        self._update(self.alpha, self.power_scale / FIXED_ONE)
+        self.level_scale[0] = self.power_scale / FIXED_ONE
+        self._update(self.alpha)
         self.photons_emitted += self.photons_per_iteration
         self.work_done += self.photons_per_iteration
 
@@ -191,7 +194,8 @@ class Sppm(Method):
     def _photon_pass(self, seed: ti.u32, iteration: ti.u32, n_photons: ti.i32, max_segments: ti.i32):
         for p in range(n_photons):
             key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
-            if trace_photon(self.dscene, _HashSource, key, self, 0, max_segments):
+            used, _ = trace_photon(self.dscene, _HashSource, key, self, 0, max_segments)
+            if used:
                 ti.atomic_add(self.counters[0], 1)
 
     @ti.func
@@ -211,24 +215,33 @@ class Sppm(Method):
         """Deposit a photon vertex into every MP that accepts it."""
         used = 0
         first, end = self.grid.candidates(x)
-        rel = beta / self.power_scale
         for e in range(first, end):
             j = self.grid.entries[e]
             if self.accepts(j, x, n, wi, segments):
-                nj = self.mp_n[j]
-                t1, t2 = onb(nj)
-                f = self.dscene.bsdf_eval(self.mp_bsdf[j], to_local(self.mp_wo[j], t1, t2, nj), to_local(wi, t1, t2, nj))
-                contrib = rel * f
-                if (contrib == contrib).all() and contrib.max() < 1e9:
-                    ti.atomic_add(self.M[j], 1)
-                    fixed = ti.cast(ti.cast(contrib, ti.f64) * FIXED_ONE + 0.5, ti.i64)
-                    for c in ti.static(range(3)):
-                        ti.atomic_add(self.phi[j][c], fixed[c])
-                    used = 1
+                used |= self.deposit_at(j, wi, beta, ti.Vector([1.0]))
         return used
 
+    @ti.func
+    def deposit_at(self, j, wi, beta, weights) -> ti.i32:
+        """Add photon power beta arriving from wi to MP j, weight[l] of it to level l's
+        accumulator, and count the photon. Returns 0 for a non-finite contribution (dropped)."""
+        nj = self.mp_n[j]
+        t1, t2 = onb(nj)
+        f = self.dscene.bsdf_eval(self.mp_bsdf[j], to_local(self.mp_wo[j], t1, t2, nj), to_local(wi, t1, t2, nj))
+        contrib = ti.cast(beta / self.power_scale * f, ti.f64)
+        ok = 0
+        if (contrib == contrib).all() and contrib.max() * weights.max() < 1e9:
+            ti.atomic_add(self.M[j], 1)
+            for level in ti.static(range(self.n_levels)):
+                if weights[level] > 0.0:
+                    fixed = ti.cast(contrib * ti.cast(weights[level], ti.f64) * FIXED_ONE + 0.5, ti.i64)
+                    for c in ti.static(range(3)):
+                        ti.atomic_add(self.phi[level, j][c], fixed[c])
+            ok = 1
+        return ok
+
     @ti.kernel
-    def _update(self, alpha: ti.f64, flux_scale: ti.f64):
+    def _update(self, alpha: ti.f64):
         for i in range(self.n_pixels):
             m = ti.cast(self.M[i], ti.f64)
             if self.mp_valid[i] and m > 0.0:
@@ -236,14 +249,17 @@ class Sppm(Method):
                 n_old = self.N[i]
                 n_new = n_old + alpha * m
                 r_new = r * ti.sqrt(n_new / (n_old + m))
-                phi = ti.cast(self.phi[i], ti.f64) * flux_scale
+                phi = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+                for level in ti.static(range(self.n_levels)):
+                    phi += ti.cast(self.phi[level, i], ti.f64) * self.level_scale[level]
                 w_phi = ti.cast(self.mp_W[i], ti.f64) * phi
                 self.D[i] += w_phi / (ti.f64(PI) * r * r)                # D form (algorithms.md §1.3)
                 self.tau[i] = (self.tau[i] + w_phi) * (r_new * r_new) / (r * r)   # tau form, kept for the test
                 self.N[i] = n_new
                 self.R[i] = r_new
             self.M[i] = 0
-            self.phi[i] = ti.Vector([0, 0, 0], ti.i64)
+            for level in ti.static(range(self.n_levels)):
+                self.phi[level, i] = ti.Vector([0, 0, 0], ti.i64)
 
     # -- results ----------------------------------------------------------------------
     def image(self):

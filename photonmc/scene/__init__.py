@@ -2,4 +2,4 @@
 from .loader import load_scene
 from .scene import Scene
 
-__all__ = ["load_scene", "Scene"]
+__all__ = ["Scene", "load_scene"]

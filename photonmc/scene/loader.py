@@ -384,7 +384,7 @@ class _Builder:
             raise SceneError(f"{where}: every triangle of this {node.type} is degenerate (zero area)")
         if not np.all(good):
             self.warnings.append(f"{where}: dropped {int((~good).sum())} degenerate (zero-area) triangles "
-                                 f"of {int(len(good))}")
+                                 f"of {len(good)}")
         tri, f, face_n = tri[good], f[good], face_n[good]
         face_n = face_n / np.linalg.norm(face_n, axis=1, keepdims=True)
         if n is None:

@@ -80,7 +80,7 @@ class Transform:
     m: np.ndarray = field(default_factory=lambda: np.eye(4))
     n: np.ndarray = field(default_factory=lambda: np.eye(3))
 
-    def then(self, step: np.ndarray, normal_step: np.ndarray | None = None) -> "Transform":
+    def then(self, step: np.ndarray, normal_step: np.ndarray | None = None) -> Transform:
         if normal_step is None:
             normal_step = np.linalg.inv(step[:3, :3]).T if abs(np.linalg.det(step[:3, :3])) > 0 else np.eye(3)
         return Transform(step @ self.m, normal_step @ self.n)

@@ -1,0 +1,369 @@
+"""Markov chains over primary sample space, shared by the guided photon methods and by the
+toy-target tests (algorithms.md §2, §3, §5).
+
+A pool runs `n_chains` independent ladders in parallel (one CPU thread per ladder at a time),
+each ladder holding `n_levels` replicas:
+  * level 0 targets the binary visibility V(u). Each step first draws a uniform proposal (the
+    exchange with an implicit uniform chain, H&J 2011); a visible one replaces the state,
+    otherwise the state is mutated;
+  * levels 1.. run Metropolis-Hastings on their own targets, and neighbouring levels exchange
+    states (replica exchange, Gruson et al. 2016).
+Replicas live in slots; the ladder's level->slot table is what an exchange permutes.
+
+Slot state: u[slot, :ell] is the stored prefix of the primary sample vector. Coordinates at
+and beyond `ell` have not been read since they were last drawn, so they are i.i.d. uniform
+and independent of everything the chain decided; a proposal that reads one draws it afresh.
+This is exact and keeps a mutation's cost proportional to the path it builds.
+T[slot] holds the state's value under every level's target (exchanges then cost nothing);
+pending[slot][l] is the weight recorded at level l and not yet deposited. Deposits are
+deferred until a state is replaced or the pass ends, so a state that repeats is traced once.
+
+Mutation (all three reference implementations of H&J): per coordinate u +- r^(1/theta + 1),
+r uniform, sign uniform, wrapped to [0, 1). theta is per level and adapted on the host
+between passes (`adapt_theta`).
+
+A model is any data-oriented object with
+    trace(source, key, vkey, mode, weight, T) -> (T: ti.Vector(n_levels), dims read)
+which, for mode PROBE, evaluates every level's target on the path whose coordinates
+`source.get(key, dim)` yields, and for mode DEPOSIT deposits that path with weight[l] recorded
+at level l (T: its target values). `vkey` (the ladder index) names the model's scratch space.
+"""
+import math
+
+import numpy as np
+import taichi as ti
+
+from . import rng
+from .fields import FieldGroup
+
+# Per-level counters (int64, atomics, so they are exact and order-independent).
+MUTATIONS, ACCEPTED, UNIFORM, UNIFORM_VISIBLE, SWAPS_TRIED, SWAPS_ACCEPTED, FAILURES, FAILURES_DROPPED = range(8)
+N_COUNTERS = 8
+
+THETA_MIN, THETA_MAX = 1e-4, 1.0        # clamps of the mutation-size parameter
+THETA_START = 0.5
+FRESH_SALT = 0x5BD1E995                 # separates fresh coordinates from mutation offsets
+
+
+# What a source key asks for: key = (slot, proposal key, level, mode).
+UNIFORM_MODE, MUTATION_MODE, STATE_MODE = 0, 1, 2
+# What a model's trace does with the path.
+PROBE, DEPOSIT = 0, 1
+
+
+@ti.data_oriented
+class _ChainSource:
+    """Coordinates of the path a key names: a fresh uniform proposal, a mutation of a slot's
+    state (with its level's theta), or the slot's stored state. One source with a runtime mode,
+    so that each kernel inlines the photon tracer once (each inlined copy costs compile time)."""
+
+    def __init__(self, pool):
+        self.pool = pool
+
+    @ti.func
+    def get(self, key, dim):
+        slot = ti.cast(key[0], ti.i32)
+        mode = ti.cast(key[3], ti.i32)
+        v = rng.uniform(key[1] ^ ti.u32(FRESH_SALT), dim)     # a coordinate never read before
+        if mode == UNIFORM_MODE:
+            v = rng.uniform(key[1], dim)
+        elif dim < self.pool.ell[slot]:
+            v = self.pool.u[slot, dim]
+            if mode == MUTATION_MODE:
+                r = rng.uniform(key[1], 2 * dim)
+                delta = ti.pow(r, 1.0 / self.pool.theta[ti.cast(key[2], ti.i32)] + 1.0)
+                if rng.uniform(key[1], 2 * dim + 1) < 0.5:
+                    delta = -delta
+                v += delta
+                v -= ti.floor(v)
+                if v >= 1.0:          # float rounding of a tiny negative value
+                    v = 0.0
+        return v
+
+
+@ti.func
+def component(v: ti.template(), i):
+    """v[i] for a runtime index i, without dynamic indexing (which the 1.7.4 compiler
+    mishandles in these kernels)."""
+    x = v[0]
+    for k in ti.static(range(1, v.n)):
+        if k == i:
+            x = v[k]
+    return x
+
+
+def harmonic(n: int) -> float:
+    """H(n) = 1 + 1/2 + ... + 1/n (asymptotic series beyond 64 terms; exact to ~1e-12)."""
+    if n <= 0:
+        return 0.0
+    if n <= 64:
+        return sum(1.0 / k for k in range(1, n + 1))
+    return math.log(n) + 0.5772156649015329 + 1.0 / (2 * n) - 1.0 / (12 * n * n)
+
+
+def adapt_theta(theta: float, acceptance: float, target: float, done_before: int, done_now: int) -> float:
+    """Diminishing (Robbins-Monro) adaptation theta <- theta + (A - A*)/i summed over the
+    mutations i of one pass, with A the pass's acceptance: the per-mutation rule of the
+    reference codes applied in one batch, which keeps one theta per pass for all threads."""
+    step = harmonic(done_before + done_now) - harmonic(done_before)
+    return float(min(max(theta + (acceptance - target) * step, THETA_MIN), THETA_MAX))
+
+
+@ti.data_oriented
+class ChainPool:
+    def __init__(self, n_chains: int, n_levels: int, dims: int, drop_failures: bool = False,
+                 expected_values: bool = False):
+        self.n_chains, self.n_levels, self.dims = n_chains, n_levels, dims
+        self.n_slots = n_chains * n_levels
+        self.drop_failures = bool(drop_failures)
+        self.expected_values = bool(expected_values)
+        f = FieldGroup()
+        self.u = f.scalar(ti.f32, (self.n_slots, dims))
+        self.ell = f.scalar(ti.i32, self.n_slots)
+        self.T = f.vector(n_levels, ti.f32, self.n_slots)
+        self.pending = f.vector(n_levels, ti.f32, self.n_slots)
+        self.level_slot = f.scalar(ti.i32, (n_chains, n_levels))
+        self.theta = f.scalar(ti.f32, n_levels)
+        self.counters = f.scalar(ti.i64, (n_levels, N_COUNTERS))
+        # Per-ladder float sums, added up on the host in a fixed order (determinism):
+        # recorded weight per level, and sum of T[l+1]/T[l] over level-l records.
+        self.recorded = f.scalar(ti.f64, (n_chains, n_levels))
+        self.ratio = f.scalar(ti.f64, (n_chains, n_levels))
+        f.finalize()
+        self.fields = f
+        self.source = _ChainSource(self)
+        self.total_mutations = np.zeros(n_levels, np.int64)
+        self.reset()
+
+    def release(self):
+        self.fields.release()
+
+    def reset(self):
+        """Empty every chain (they restart from uniform proposals) and theta."""
+        for fld in (self.u, self.ell, self.T, self.pending, self.counters, self.recorded, self.ratio):
+            fld.fill(0)
+        self.level_slot.from_numpy(np.arange(self.n_slots, dtype=np.int32).reshape(self.n_chains, self.n_levels))
+        self.theta.fill(THETA_START)
+        self.total_mutations[:] = 0
+
+    def begin_pass(self, model):
+        """The target changed (new measurement points): re-evaluate every stored state and
+        clear the per-pass tallies."""
+        for fld in (self.counters, self.recorded, self.ratio):
+            fld.fill(0)
+        self._reevaluate(model)
+
+    def run(self, model, seed: int, iteration: int, steps: int):
+        """`steps` chain steps in all, spread over the ladders, then deposit every pending weight."""
+        self._run(model, seed, iteration, steps)
+        self._flush_all(model)
+
+    def tallies(self) -> dict:
+        """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l]."""
+        c = self.counters.to_numpy()
+        rec = self.recorded.to_numpy().sum(axis=0)
+        ratio = self.ratio.to_numpy().sum(axis=0)
+        return {"counters": c, "recorded": rec,
+                "mean_ratio": np.divide(ratio, rec, out=np.zeros_like(ratio), where=rec > 0)}
+
+    def normalisations(self, tallies: dict) -> np.ndarray:
+        """b_0 = visible fraction of uniform proposals; b_{l+1} = b_l E_{T_l}[T_{l+1}/T_l]
+        (valid because every level's support lies inside the one below, algorithms.md §3.6)."""
+        c = tallies["counters"]
+        b = np.zeros(self.n_levels)
+        b[0] = c[0, UNIFORM_VISIBLE] / max(c[0, UNIFORM], 1)
+        for level in range(1, self.n_levels):
+            b[level] = b[level - 1] * tallies["mean_ratio"][level - 1]
+        return b
+
+    def adapt(self, tallies: dict, target_acceptance: float) -> None:
+        c = tallies["counters"]
+        theta = self.theta.to_numpy()
+        for level in range(self.n_levels):
+            n = int(c[level, MUTATIONS])
+            if n > 0:
+                theta[level] = adapt_theta(float(theta[level]), c[level, ACCEPTED] / n, target_acceptance,
+                                           int(self.total_mutations[level]), n)
+                self.total_mutations[level] += n
+        self.theta.from_numpy(theta.astype(np.float32))
+
+    # -- kernels ------------------------------------------------------------------------
+    @ti.kernel
+    def _reevaluate(self, model: ti.template()):
+        for c in range(self.n_chains):
+            for level in range(self.n_levels):
+                s = self.level_slot[c, level]
+                t = ti.Vector([0.0] * self.n_levels)
+                if self.ell[s] > 0:
+                    t, _ = model.trace(self.source, ti.math.uvec4(s, 0, 0, STATE_MODE), c, PROBE, t, t)
+                self.T[s] = t
+
+    @ti.kernel
+    def _run(self, model: ti.template(), seed: ti.u32, iteration: ti.u32, steps: ti.i32):
+        base = steps // self.n_chains
+        extra = steps % self.n_chains
+        for c in range(self.n_chains):
+            state = rng.seed(seed, ti.u32(c), iteration * ti.u32(2) + ti.u32(1))
+            n = base + (1 if c < extra else 0)
+            for _ in range(n):
+                self._step(model, c, state)
+
+    @ti.kernel
+    def _flush_all(self, model: ti.template()):
+        for c in range(self.n_chains):
+            for level in range(self.n_levels):
+                s = self.level_slot[c, level]
+                w = self.pending[s]
+                if w.max() > 0.0:
+                    model.trace(self.source, ti.math.uvec4(s, 0, 0, STATE_MODE), c, DEPOSIT, w, self.T[s])
+                self.pending[s] = ti.Vector([0.0] * self.n_levels)
+
+    # -- one step of one ladder ------------------------------------------------------------
+    @ti.func
+    def _step(self, model: ti.template(), c, state: ti.template()):
+        """Move 0: a uniform proposal for level 0 (the exchange with the implicit uniform chain:
+        a visible one is always taken, since the swap ratio is V(u_uniform) = 1). Move 1: if it
+        was invisible, a mutation of level 0. Moves 2..: a mutation of each higher level.
+        Then replica exchanges between neighbours."""
+        zero = ti.Vector([0.0] * self.n_levels)
+        uniform_visible = 0
+        for move in range(self.n_levels + 1):
+            if move == 1 and uniform_visible:
+                continue
+            level = ti.max(move - 1, 0)
+            mode = MUTATION_MODE
+            if move == 0:
+                mode = UNIFORM_MODE
+            s = self.level_slot[c, level]
+            key = ti.math.uvec4(s, rng.next_u32(state), level, mode)
+            t_new = zero
+            dims = 0
+            accept = 0
+            a = 0.0
+            deposit_key = key
+            deposit_w = zero
+            deposit_t = zero
+            # Phase 0 evaluates the proposal; phase 1 makes the deposit the decision calls for
+            # (the replaced state's pending weight, or an expected-value share of a rejected
+            # proposal). One trace call site for both.
+            for phase in range(2):
+                trace_key = key
+                trace_mode = PROBE
+                if phase == 1:
+                    trace_key = deposit_key
+                    trace_mode = DEPOSIT
+                if phase == 0 or deposit_w.max() > 0.0:
+                    result, used_dims = model.trace(self.source, trace_key, c, trace_mode, deposit_w, deposit_t)
+                    if phase == 0:
+                        t_new = result
+                        dims = used_dims
+                        accept, a = self._decide(c, level, move, s, t_new, state)
+                        if move == 0:
+                            uniform_visible = accept
+                        if accept:
+                            deposit_key = ti.math.uvec4(s, 0, 0, STATE_MODE)
+                            deposit_w = self.pending[s]
+                            deposit_t = self.T[s]
+                        elif ti.static(self.expected_values) and a > 0.0:
+                            for k in ti.static(range(self.n_levels)):
+                                if k == level:
+                                    deposit_w[k] = a
+                            deposit_t = t_new
+                            self._tally(c, level, t_new, a)
+            if accept:
+                self._store(s, key, t_new, dims, move == 0)
+                w_new = 1.0
+                if ti.static(self.expected_values) and move > 0:
+                    w_new = a
+                self._record(c, level, s, w_new)
+            elif move > 0 and not (ti.static(self.drop_failures) and component(t_new, level) <= 0.0):
+                if ti.static(not self.expected_values) and component(self.T[s], level) > 0.0:
+                    self._record(c, level, s, 1.0)
+        for level in ti.static(range(self.n_levels - 1)):
+            self._exchange(c, level, state)
+
+    @ti.func
+    def _decide(self, c, level, move, s, t_new, state: ti.template()):
+        """Metropolis-Hastings decision for a proposal with target values t_new (a uniform
+        proposal to level 0 is taken iff visible). Records the current state's expected-value
+        share (1 - a) before it may be replaced."""
+        a = 0.0
+        accept = 0
+        if move == 0:
+            ti.atomic_add(self.counters[0, UNIFORM], 1)
+            if t_new[0] > 0.0:
+                ti.atomic_add(self.counters[0, UNIFORM_VISIBLE], 1)
+                accept = 1
+                a = 1.0
+        else:
+            ti.atomic_add(self.counters[level, MUTATIONS], 1)
+            t_cur = component(self.T[s], level)
+            if component(t_new, level) > 0.0:
+                a = 1.0
+                if t_cur > 0.0:
+                    a = ti.min(1.0, component(t_new, level) / t_cur)
+            else:
+                ti.atomic_add(self.counters[level, FAILURES], 1)
+                if ti.static(self.drop_failures):
+                    # The proposal-failure remedy (Zeng & Wei 2019): a failed proposal records
+                    # nothing. It samples T z instead of T (algorithms.md §5.2): an option.
+                    ti.atomic_add(self.counters[level, FAILURES_DROPPED], 1)
+            if rng.next_float(state) < a:
+                accept = 1
+                ti.atomic_add(self.counters[level, ACCEPTED], 1)
+            dropped = ti.static(self.drop_failures) and component(t_new, level) <= 0.0
+            if ti.static(self.expected_values) and t_cur > 0.0 and a < 1.0 and not dropped:
+                self._record(c, level, s, 1.0 - a)
+        return accept, a
+
+    @ti.func
+    def _exchange(self, c, lo: ti.template(), state: ti.template()):
+        hi = lo + 1
+        sa = self.level_slot[c, lo]
+        sb = self.level_slot[c, hi]
+        # Read whole vectors: Taichi 1.7.4's compiler crashes on field[i][k] reads here.
+        ta = self.T[sa]
+        tb = self.T[sb]
+        num = tb[lo] * ta[hi]
+        den = ta[lo] * tb[hi]
+        u = rng.next_float(state)
+        swap = 0
+        if den > 0.0:
+            if u * den < num:
+                swap = 1
+        elif tb[hi] <= 0.0 and ta[hi] > 0.0:
+            swap = 1              # the upper replica is empty or stale: hand it a valid state
+        ti.atomic_add(self.counters[lo, SWAPS_TRIED], 1)
+        if swap:
+            ti.atomic_add(self.counters[lo, SWAPS_ACCEPTED], 1)
+            self.level_slot[c, lo] = sb
+            self.level_slot[c, hi] = sa
+
+    @ti.func
+    def _tally(self, c, level, t, w):
+        self.recorded[c, level] += ti.cast(w, ti.f64)
+        if level + 1 < self.n_levels:
+            self.ratio[c, level] += ti.cast(w * component(t, level + 1) / component(t, level), ti.f64)
+
+    @ti.func
+    def _record(self, c, level, s, w):
+        """The state in slot s is a sample of `level` with weight w (deposited later)."""
+        self._tally(c, level, self.T[s], w)
+        p = self.pending[s]
+        for k in ti.static(range(self.n_levels)):
+            if k == level:
+                p[k] += w
+        self.pending[s] = p
+
+    @ti.func
+    def _store(self, s, key, t_new, dims, renew_all):
+        """Slot s takes the proposal named by key (its pending weight was deposited)."""
+        n = ti.max(dims, self.ell[s])
+        if renew_all:
+            n = dims              # a uniform proposal renews every coordinate
+        n = ti.min(n, self.dims)
+        for d in range(n):
+            self.u[s, d] = self.source.get(key, d)
+        self.ell[s] = n
+        self.T[s] = t_new
+        self.pending[s] = ti.Vector([0.0] * self.n_levels)

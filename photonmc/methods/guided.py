@@ -1,0 +1,312 @@
+"""Photon paths guided by Markov chains in primary sample space, on SPPM's camera pass, grid
+and progressive update (algorithms.md §2, §3).
+
+visibility (Hachisuka & Jensen 2011): one chain level with target V(u) = 1 when the photon
+path deposits into at least one current measurement point (MP), decided by exactly SPPM's
+deposit predicate. Each step tries a uniform path first (kept if visible) and otherwise
+mutates; the current state is deposited once per step. The pass's flux is scaled by b_V, the
+fraction of its uniform paths that were visible.
+
+spatial-tf (Gruson et al. 2016): three levels, visibility -> inverse MP area -> spatial
+importance ~ 1/P(hit MP) from hit statistics in world-space clusters (clusters.py), with
+replica exchange between neighbours, normalisations chained level by level
+(b_{l+1} = b_l E_l[T_{l+1}/T_l]) and balance-heuristic MIS between the levels.
+
+Estimator, per pass and MP j: Phi_j = sum_l (b_l / N_l) sum_{level-l records} m_l(u) phi_j(u) / T_l(u),
+with N_l the level's recorded weight, m_l = (T_l/b'_l) / sum_k (T_k/b'_k) using the previous
+pass's b' (so the weights do not depend on this pass's samples) and phi_j(u) the power the
+path deposits at j. One pass counts as `photons` emitted photon paths, like SPPM.
+"""
+import math
+
+import numpy as np
+import taichi as ti
+
+from ..errors import SettingsError
+from ..kernels.fields import FieldGroup
+from ..kernels.mcmc import (
+    ACCEPTED,
+    DEPOSIT,
+    FAILURES,
+    FAILURES_DROPPED,
+    MUTATIONS,
+    PROBE,
+    SWAPS_ACCEPTED,
+    SWAPS_TRIED,
+    UNIFORM,
+    UNIFORM_VISIBLE,
+    ChainPool,
+)
+from ..kernels.photon import dimensions, trace_photon
+from .clusters import HitDensityClusters
+from .sppm import FIXED_ONE, Sppm
+
+EPS_AREA = 1e-3          # regularisers of the spatial importance (bound its dynamic range)
+EPS_DENSITY = 1e-3
+MAX_CHAINS = 1 << 20
+
+
+@ti.data_oriented
+class GuidedPhotons(Sppm):
+    """Shared by `visibility` (one level) and `spatial-tf` (three)."""
+    work_unit = "photons"
+    default_iterations = 100
+    OPTIONS = {**Sppm.OPTIONS, "chains": None, "target_acceptance": 0.234, "proposal_failures": "keep",
+               "expected_values": False}
+    path_target_sum = False
+
+    def __init__(self, dscene, settings):
+        super().__init__(dscene, settings)
+        opts = self.options
+        n_p = self.photons_per_iteration
+        self.n_chains = int(opts["chains"] if opts["chains"] is not None else max(1, min(n_p // 32, 65536)))
+        if not 1 <= self.n_chains <= MAX_CHAINS:
+            raise SettingsError(f"--chains must be between 1 and {MAX_CHAINS}, got {self.n_chains}")
+        self.target_acceptance = float(opts["target_acceptance"])
+        if not 0.0 < self.target_acceptance < 1.0:
+            raise SettingsError(f"--target-acceptance must be in (0, 1), got {self.target_acceptance}")
+        if opts["proposal_failures"] not in ("keep", "drop"):
+            raise SettingsError(f"--proposal-failures must be 'keep' or 'drop', got '{opts['proposal_failures']}'")
+        self.drop_failures = opts["proposal_failures"] == "drop"
+        self.expected_values = bool(opts["expected_values"])
+        self.pool = ChainPool(self.n_chains, self.n_levels, dimensions(self.max_photon_segments),
+                              self.drop_failures, self.expected_values)
+        f = FieldGroup()
+        L, n, c = self.n_levels, self.n_pixels, self.n_chains
+        self.target_scratch = f.vector(L, ti.f32, c)
+        self.visit_mode = f.scalar(ti.i32, c)
+        self.flux_weight = f.vector(L, ti.f32, c)
+        self.hit_weight = f.vector(L, ti.f32, c)
+        self.b_mis = f.scalar(ti.f32, L)              # previous pass's normalisations, for MIS only
+        self.paths_traced = f.scalar(ti.i64, ())
+        if L > 1:
+            self.inv_area = f.scalar(ti.f32, n)
+            self.importance = f.scalar(ti.f32, n)
+            self.hits = f.scalar(ti.i64, (L, n))
+        f.finalize()
+        self.guide_fields = f
+        self._reset_guided()
+
+    def release(self):
+        self.pool.release()
+        self.guide_fields.release()
+        super().release()
+
+    def _reset(self):
+        super()._reset()
+        self.pool.reset()
+        self._reset_guided()
+
+    def _reset_guided(self):
+        self.b_mis.fill(1.0)
+        self.paths_traced[None] = 0
+        L = self.n_levels
+        self.totals = np.zeros((L, 8), np.int64)
+        self.b_last = np.zeros(L)
+        self.b_sum = np.zeros(L)
+        self.passes_with_b = 0
+
+    # -- the model interface of ChainPool -------------------------------------------------
+    @ti.func
+    def trace(self, source: ti.template(), key, vkey, mode, w, t):
+        """Trace the path `key` names; PROBE: evaluate every level's target, DEPOSIT: deposit it
+        with weight w[l] recorded at level l (t: its target values)."""
+        self.visit_mode[vkey] = mode
+        if mode == DEPOSIT:
+            self._set_deposit_weights(vkey, w, t)
+        self.target_scratch[vkey] = ti.Vector([0.0] * self.n_levels)
+        _, dims = trace_photon(self.dscene, source, key, self, vkey, ti.static(self.max_photon_segments))
+        ti.atomic_add(self.paths_traced[None], 1)
+        return self.target_scratch[vkey], dims
+
+    @ti.func
+    def _set_deposit_weights(self, vkey, w, t):
+        denom = 0.0
+        for k in ti.static(range(self.n_levels)):
+            if t[k] > 0.0:
+                denom += t[k] / self.b_mis[k]
+        fw = ti.Vector([0.0] * self.n_levels)
+        hw = ti.Vector([0.0] * self.n_levels)
+        if denom > 0.0:
+            for level in ti.static(range(self.n_levels)):
+                if w[level] > 0.0 and t[level] > 0.0:
+                    # m_l / T_l with the balance heuristic m_l = (T_l/b_l) / sum_k T_k/b_k
+                    fw[level] = w[level] / (self.b_mis[level] * denom)
+            if ti.static(self.n_levels > 1):
+                # Hit statistics for the spatial importance come from levels 0 and 1 only
+                # (MIS over those two): the spatial level must not feed back on itself.
+                d01 = t[0] / self.b_mis[0] + t[1] / self.b_mis[1]
+                for level in ti.static(range(2)):
+                    if w[level] > 0.0 and t[level] > 0.0:
+                        hw[level] = w[level] / (self.b_mis[level] * d01)
+        self.flux_weight[vkey] = fw
+        self.hit_weight[vkey] = hw
+
+    @ti.func
+    def visit(self, vkey: ti.i32, x, n, wi, beta, segments: ti.i32) -> ti.i32:
+        """Photon-vertex visitor: evaluates the targets or deposits, per the trace mode."""
+        first, end = self.grid.candidates(x)
+        hit = 0
+        probing = self.visit_mode[vkey] == PROBE
+        t = self.target_scratch[vkey]
+        fw = self.flux_weight[vkey]
+        hw = self.hit_weight[vkey]
+        for e in range(first, end):
+            j = self.grid.entries[e]
+            if self.accepts(j, x, n, wi, segments):
+                if probing:
+                    hit = 1
+                    if ti.static(self.n_levels > 1):
+                        t[1] = ti.max(t[1], self.inv_area[j])
+                        if ti.static(self.path_target_sum):
+                            t[2] += self.importance[j]
+                        else:
+                            t[2] = ti.max(t[2], self.importance[j])
+                elif self.deposit_at(j, wi, beta, fw):
+                    hit = 1
+                    if ti.static(self.n_levels > 1):
+                        for level in ti.static(range(self.n_levels)):
+                            if hw[level] > 0.0:
+                                ti.atomic_add(self.hits[level, j],
+                                              ti.cast(ti.cast(hw[level], ti.f64) * FIXED_ONE + 0.5, ti.i64))
+        if probing and hit:
+            t[0] = 1.0
+            self.target_scratch[vkey] = t
+        return hit
+
+    # -- the iteration -----------------------------------------------------------------------
+    def _iterate(self):
+        it = self.iterations
+        n_p = self.photons_per_iteration
+        self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle)
+        self.grid.build(self.mp_p, self.mp_radius, self.mp_valid)
+        self._prepare_targets()
+        self.pool.begin_pass(self)
+        self.pool.run(self, self.seed_u32, it, n_p)
+        tallies = self.pool.tallies()
+        b = self.pool.normalisations(tallies)
+        recorded = tallies["recorded"]
+        scale = np.where(recorded > 0, b * n_p / np.maximum(recorded, 1e-300), 0.0)
+        self.level_scale.from_numpy(scale * (self.power_scale / FIXED_ONE))
+        self._after_pass(scale)
+        self._update(self.alpha)
+        self.pool.adapt(tallies, self.target_acceptance)
+        if (b > 0).all():
+            self.b_mis.from_numpy(b.astype(np.float32))
+        self.totals += tallies["counters"]
+        self.b_last = b
+        if b[0] > 0:
+            self.b_sum += b
+            self.passes_with_b += 1
+        self.photons_emitted += n_p
+        self.work_done += n_p
+
+    def _prepare_targets(self):
+        """Per-MP target factors for levels above visibility (none for `visibility`)."""
+
+    def _after_pass(self, level_scale):
+        """Use this pass's deposits before the update clears them (hit statistics)."""
+
+    # -- results ---------------------------------------------------------------------------
+    def method_stats(self):
+        s = super().method_stats()
+        s.pop("fraction_of_photon_paths_depositing", None)
+        t = self.totals
+        theta = self.pool.theta.to_numpy()
+        levels = []
+        for level in range(self.n_levels):
+            mut = int(t[level, MUTATIONS])
+            levels.append({
+                "target": self.level_names[level],
+                "mutations": mut,
+                "acceptance": float(t[level, ACCEPTED]) / mut if mut else None,
+                "theta": float(theta[level]),
+                "proposal_failures": int(t[level, FAILURES]),
+                "failures_dropped": int(t[level, FAILURES_DROPPED]),
+                "normalisation_last": float(self.b_last[level]),
+                "normalisation_mean": float(self.b_sum[level] / self.passes_with_b) if self.passes_with_b else None,
+            })
+        swaps = {f"{self.level_names[k]}<->{self.level_names[k + 1]}":
+                 (float(t[k, SWAPS_ACCEPTED]) / t[k, SWAPS_TRIED] if t[k, SWAPS_TRIED] else None)
+                 for k in range(self.n_levels - 1)}
+        s.update({
+            "chains": self.n_chains,
+            "target_acceptance": self.target_acceptance,
+            "proposal_failures": "drop" if self.drop_failures else "keep",
+            "expected_values": self.expected_values,
+            "uniform_visible_fraction": float(t[0, UNIFORM_VISIBLE]) / max(int(t[0, UNIFORM]), 1),
+            "photon_paths_traced": int(self.paths_traced[None]),
+            "levels": levels,
+        })
+        if swaps:
+            s["swap_acceptance"] = swaps
+        return s
+
+    def progress_fields(self) -> str:
+        t = self.totals
+        mut = max(int(t[0, MUTATIONS]), 1)
+        theta = self.pool.theta.to_numpy()
+        return (f"visible {t[0, UNIFORM_VISIBLE] / max(int(t[0, UNIFORM]), 1):.2g}  "
+                f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}")
+
+
+@ti.data_oriented
+class Visibility(GuidedPhotons):
+    name = "visibility"
+    n_levels = 1
+    level_names = ("visibility",)
+
+
+@ti.data_oriented
+class SpatialTarget(GuidedPhotons):
+    name = "spatial-tf"
+    n_levels = 3
+    level_names = ("visibility", "inverse-area", "spatial")
+    OPTIONS = {**GuidedPhotons.OPTIONS, "path_target": "max"}
+
+    def __init__(self, dscene, settings):
+        path_target = {**self.OPTIONS, **{k: v for k, v in settings.options.items() if v is not None}}["path_target"]
+        if path_target not in ("max", "sum"):
+            raise SettingsError(f"--path-target must be 'max' or 'sum', got '{path_target}'")
+        self.path_target_sum = path_target == "sum"
+        super().__init__(dscene, settings)
+        lo, hi = dscene.scene.bounds
+        self.clusters = HitDensityClusters(lo, hi, self.n_pixels)
+        self._valid = None
+
+    def _reset(self):
+        super()._reset()
+        self.clusters.reset()
+
+    def _prepare_targets(self):
+        valid = self.mp_valid.to_numpy().astype(bool)
+        pos = self.mp_p.to_numpy()[valid].astype(np.float64)
+        area = math.pi * self.mp_radius.to_numpy()[valid].astype(np.float64) ** 2
+        inv_area = np.zeros(self.n_pixels, np.float32)
+        importance = np.zeros(self.n_pixels, np.float32)
+        if valid.any():
+            ia = 1.0 / (area / area.max() + EPS_AREA)
+            rho = self.clusters.density(pos)
+            known = np.isfinite(rho)
+            imp = ia.copy()
+            if known.any():
+                rho_max = rho[known].max()
+                rho = np.where(known, rho, rho_max)        # no statistics yet: lowest importance
+                imp = ia / (rho / max(rho_max, 1e-300) + EPS_DENSITY)
+            inv_area[valid] = ia / ia.mean()
+            importance[valid] = imp / imp.mean()
+        self.inv_area.from_numpy(inv_area)
+        self.importance.from_numpy(importance)
+        self._valid, self._pos, self._area = valid, pos, area
+
+    def _after_pass(self, level_scale):
+        hits = self.hits.to_numpy().astype(np.float64) / FIXED_ONE
+        per_mp = (hits * level_scale[:, None]).sum(axis=0)
+        samples = self.M.to_numpy().astype(np.float64)
+        v = self._valid
+        self.clusters.accumulate(self._pos, self._area, per_mp[v], samples[v])
+        self.hits.fill(0)
+
+    def progress_fields(self) -> str:
+        swaps = self.totals[:, SWAPS_ACCEPTED] / np.maximum(self.totals[:, SWAPS_TRIED], 1)
+        return super().progress_fields() + f"  swap {swaps[0]:.2f}/{swaps[1]:.2f}"

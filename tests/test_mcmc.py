@@ -1,0 +1,223 @@
+"""The Markov-chain machinery (photonmc/kernels/mcmc.py) on toy targets in [0,1)^2 whose
+integrals and bin probabilities are known exactly.
+
+Histogram checks use a chi-square over bins whose variances come from independent groups of
+chains, so the autocorrelation of each chain is accounted for, not ignored."""
+import numpy as np
+import pytest
+import taichi as ti
+from scipy import stats as sps
+
+from photonmc.kernels.fields import FieldGroup
+from photonmc.kernels.mcmc import (ACCEPTED, DEPOSIT, MUTATIONS, THETA_MAX, THETA_MIN, ChainPool, adapt_theta,
+                                   harmonic)
+
+BINS = 8
+GROUPS = 32
+KINDS = {"strip": 0, "all": 1, "needle": 2, "disc": 3}
+FINE = 800            # integration grid: aligned with every edge of the supports below
+
+
+@ti.func
+def in_support(x, y, kind: ti.template()):
+    inside = 0
+    if ti.static(kind == KINDS["all"]):
+        inside = 1
+    elif ti.static(kind == KINDS["needle"]):
+        inside = 1 if (0.5 <= x < 0.5005 and 0.5 <= y < 0.5005) else 0
+    elif ti.static(kind == KINDS["disc"]):
+        inside = 1 if (x - 0.5) ** 2 + (y - 0.5) ** 2 < 0.015 else 0
+    else:  # a square and a narrow strip: mutations often leave the strip (proposal failures)
+        if (x < 0.5 and y < 0.5) or (x >= 0.5 and 0.2 <= y < 0.25):
+            inside = 1
+    return inside
+
+
+def support_np(x, y, kind):
+    if kind == "all":
+        return np.ones_like(x)
+    if kind == "disc":
+        return ((x - 0.5) ** 2 + (y - 0.5) ** 2 < 0.015).astype(float)
+    if kind == "needle":
+        return ((0.5 <= x) & (x < 0.5005) & (0.5 <= y) & (y < 0.5005)).astype(float)
+    return (((x < 0.5) & (y < 0.5)) | ((x >= 0.5) & (0.2 <= y) & (y < 0.25))).astype(float)
+
+
+def targets_np(x, y, kind, levels):
+    v = support_np(x, y, kind)
+    return [v, v * (0.1 + x), v * (0.05 + x * y * 4.0)][:levels]
+
+
+@ti.data_oriented
+class ToyModel:
+    """Targets: V (the support), V (0.1 + x), V (0.05 + 4xy); deposits into per-group histograms."""
+
+    def __init__(self, levels, chains, kind="strip"):
+        self.levels, self.kind_id = levels, KINDS[kind]
+        self.chains = chains
+        f = FieldGroup()
+        self.hist = f.scalar(ti.f64, (levels, GROUPS, BINS, BINS))
+        f.finalize()
+        self.fields = f
+
+    @ti.func
+    def trace(self, source: ti.template(), key, vkey, mode, w, t):
+        x = source.get(key, 0)
+        y = source.get(key, 1)
+        v = ti.cast(in_support(x, y, self.kind_id), ti.f32)
+        full = ti.Vector([v, v * (0.1 + x), v * (0.05 + x * y * 4.0)])
+        out = ti.Vector([0.0] * self.levels)
+        for k in ti.static(range(self.levels)):
+            out[k] = full[k]
+        if mode == DEPOSIT:
+            g = vkey % GROUPS
+            bx = ti.min(ti.cast(x * BINS, ti.i32), BINS - 1)
+            by = ti.min(ti.cast(y * BINS, ti.i32), BINS - 1)
+            for k in ti.static(range(self.levels)):
+                self.hist[k, g, bx, by] += ti.cast(w[k], ti.f64)
+        return out, 2
+
+
+def exact_bins(kind, levels):
+    c = (np.arange(FINE) + 0.5) / FINE
+    x, y = np.meshgrid(c, c, indexing="ij")
+    out = []
+    for t in targets_np(x, y, kind, levels):
+        b = t.reshape(BINS, FINE // BINS, BINS, FINE // BINS).sum(axis=(1, 3)) / FINE**2
+        out.append(b)
+    return out          # per level: integral of T over each bin
+
+
+def run_toy(levels, chains=GROUPS * 16, passes=8, steps_per_chain=100, kind="strip", drop=False, ev=False,
+            adapt=True, theta=None, seed=3):
+    model = ToyModel(levels, chains, kind)
+    pool = ChainPool(chains, levels, 2, drop_failures=drop, expected_values=ev)
+    if theta is not None:
+        pool.theta.fill(theta)
+    b_sum = np.zeros(levels)
+    last = None
+    for it in range(passes):
+        pool.begin_pass(model)
+        pool.run(model, seed, it, chains * steps_per_chain)
+        last = pool.tallies()
+        b_sum += pool.normalisations(last)
+        if adapt:
+            pool.adapt(last, 0.234)
+    hist = model.hist.to_numpy()
+    theta = pool.theta.to_numpy()
+    model.fields.release()
+    pool.release()
+    return hist, b_sum / passes, last, theta
+
+
+def chi_square(group_hist, expected_p):
+    """group_hist: (GROUPS, bins...) recorded weights; expected_p: bin probabilities.
+    Returns (chi2, dof) of the groups' mean frequencies against expected_p."""
+    g = group_hist.reshape(GROUPS, -1)
+    freq = g / g.sum(axis=1, keepdims=True)
+    p = expected_p.reshape(-1) / expected_p.sum()
+    keep = p > 0
+    mean = freq.mean(axis=0)[keep]
+    var = freq.var(axis=0, ddof=1)[keep] / GROUPS
+    assert (freq[:, ~keep] == 0).all(), "samples outside the target's support"
+    return float(((mean - p[keep]) ** 2 / np.maximum(var, 1e-30)).sum()), int(keep.sum())
+
+
+def test_harmonic_and_batch_adaptation():
+    assert harmonic(1) == 1.0 and abs(harmonic(10) - 2.9289682539682538) < 1e-12
+    assert abs(harmonic(1000) - sum(1 / k for k in range(1, 1001))) < 1e-10
+    # The batch step equals the per-mutation rule with constant acceptance.
+    theta, per_step = 0.5, 0.5
+    for i in range(1, 201):
+        per_step += (0.3 - 0.234) / i
+    assert abs(adapt_theta(theta, 0.3, 0.234, 0, 200) - min(per_step, THETA_MAX)) < 1e-9
+    assert adapt_theta(0.5, 0.0, 0.234, 0, 10**6) == THETA_MIN
+    assert adapt_theta(0.5, 1.0, 0.234, 0, 10**6) == THETA_MAX
+
+
+@pytest.mark.parametrize("ev", [False, True], ids=["splat-states", "expected-values"])
+def test_every_level_samples_its_target_and_normalisations_chain(ev):
+    """Three levels with replica exchange: each level's recorded states follow its own target
+    (chi-square at the 0.1 % level over 64 bins), and b_0 = int V, b_1 = b_0 E_0[T1/T0],
+    b_2 = b_1 E_1[T2/T1] match the exact integrals."""
+    hist, b, last, _ = run_toy(3, ev=ev)
+    exact = exact_bins("strip", 3)
+    for level in range(3):
+        chi2, dof = chi_square(hist[level], exact[level])
+        print(f"level {level}: chi2 {chi2:.1f} on {dof} bins")
+        assert chi2 < sps.chi2.ppf(0.999, dof), f"level {level} does not sample its target"
+    integrals = np.array([e.sum() for e in exact])
+    print("b", b, "exact", integrals)
+    np.testing.assert_allclose(b, integrals, rtol=0.01)
+    c = last["counters"]
+    assert (c[:2, 4] > 0).all() and (c[:2, 5] > 0).all(), "replica exchanges were tried and accepted"
+
+
+def test_adaptation_reaches_the_target_acceptance():
+    """On a disc covering 4.7 % of the square (so that 0.234 lies between what tiny and
+    independent steps achieve), every level's acceptance settles within 0.02 of 0.234."""
+    _, _, last, theta = run_toy(3, passes=12, kind="disc")
+    c = last["counters"]
+    acceptance = c[:, ACCEPTED] / c[:, MUTATIONS]
+    print("acceptance", acceptance, "theta", theta)
+    assert np.all(np.abs(acceptance - 0.234) < 0.02)
+    assert np.all((theta > THETA_MIN) & (theta < THETA_MAX))
+
+
+def test_theta_reaches_its_clamps_and_estimates_stay_right():
+    """Everything visible: every mutation is accepted, theta rises to its upper clamp.
+    A 5e-4-wide needle: almost every mutation fails, theta falls to its lower clamp.
+    Both keep the right normalisation."""
+    _, b, last, theta = run_toy(1, kind="all", passes=4)
+    assert theta[0] == pytest.approx(THETA_MAX) and b[0] == 1.0
+    hist, b, last, theta = run_toy(1, kind="needle", passes=6, steps_per_chain=400)
+    assert theta[0] == pytest.approx(THETA_MIN)
+    exact = exact_bins("needle", 1)[0].sum()
+    print("needle b", b[0], "exact", exact)
+    assert abs(b[0] - exact) < 4 * np.sqrt(exact / (GROUPS * 16 * 400))   # binomial, ~2.5e-7
+    assert hist[0].sum() > 0 and hist[0][:, 4, 4].sum() == hist[0].sum()
+
+
+def mutation_success(theta, kind, n=400_000, seed=1):
+    """z(x) per bin: the probability that a mutation from a point of the bin stays in the support."""
+    rng = np.random.default_rng(seed)
+    x = rng.random((n, 2))
+    inside = support_np(x[:, 0], x[:, 1], kind) > 0
+    x = x[inside]
+    r = rng.random(x.shape)
+    delta = r ** (1.0 / theta + 1.0) * np.where(rng.random(x.shape) < 0.5, -1.0, 1.0)
+    y = (x + delta) % 1.0
+    ok = support_np(y[:, 0], y[:, 1], kind)
+    bx, by = (np.minimum((x * BINS).astype(int), BINS - 1)).T
+    z = np.zeros((BINS, BINS))
+    cnt = np.zeros((BINS, BINS))
+    np.add.at(z, (bx, by), ok)
+    np.add.at(cnt, (bx, by), 1)
+    return np.divide(z, cnt, out=np.zeros_like(z), where=cnt > 0)
+
+
+def test_dropping_proposal_failures_samples_f_times_z():
+    """algorithms.md §5.2: with failures dropped, the visibility chain records states
+    proportionally to f (b + (1 - b) z) (b: visible fraction of the uniform proposals tried
+    first, z: mutation success probability), not f. Keeping failures samples f."""
+    theta = 0.05
+    exact = exact_bins("strip", 1)[0]
+    b = exact.sum()
+    keep, _, _, _ = run_toy(1, adapt=False, theta=theta)
+    drop, _, last, _ = run_toy(1, adapt=False, theta=theta, drop=True)
+    z = mutation_success(theta, "strip")
+    predicted = exact * (b + (1 - b) * z)
+    chi_keep, dof = chi_square(keep[0], exact)
+    chi_drop_f, _ = chi_square(drop[0], exact)
+    chi_drop_fz, _ = chi_square(drop[0], predicted)
+    print(f"keep vs f: {chi_keep:.0f}; drop vs f: {chi_drop_f:.0f}; drop vs f(b+(1-b)z): {chi_drop_fz:.0f} ({dof} bins)")
+    limit = sps.chi2.ppf(0.999, dof)
+    assert chi_keep < limit
+    assert chi_drop_fz < limit
+    assert chi_drop_f > 10 * limit
+    # where it shows: the narrow strip (low z) is under-sampled, relative to the square's interior
+    strip_share_f = exact[4:, 1:2].sum() / b
+    strip_share_drop = drop[0][:, 4:, 1:2].sum() / drop[0].sum()
+    print(f"strip's share: target {strip_share_f:.4f}, dropped failures {strip_share_drop:.4f}")
+    assert strip_share_drop < 0.8 * strip_share_f
+    assert last["counters"][0, 7] > 0
