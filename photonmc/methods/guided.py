@@ -41,6 +41,9 @@ from ..kernels.photon import dimensions, trace_photon
 from .clusters import HitDensityClusters
 from .sppm import FIXED_ONE, Sppm
 
+REGENERATIONS = 10       # visible uniform proposals each chain should see per pass
+MAX_STEPS_PER_PASS = 1 << 24
+DEFAULT_CHAINS = 64
 EPS_AREA = 1e-3          # regularisers of the spatial importance (bound its dynamic range)
 EPS_DENSITY = 1e-3
 MAX_CHAINS = 1 << 20
@@ -59,7 +62,7 @@ class GuidedPhotons(Sppm):
         super().__init__(dscene, settings)
         opts = self.options
         n_p = self.photons_per_iteration
-        self.n_chains = int(opts["chains"] if opts["chains"] is not None else max(1, min(n_p // 32, 65536)))
+        self.n_chains = int(opts["chains"] if opts["chains"] is not None else DEFAULT_CHAINS)
         if not 1 <= self.n_chains <= MAX_CHAINS:
             raise SettingsError(f"--chains must be between 1 and {MAX_CHAINS}, got {self.n_chains}")
         self.target_acceptance = float(opts["target_acceptance"])
@@ -103,6 +106,7 @@ class GuidedPhotons(Sppm):
         L = self.n_levels
         self.totals = np.zeros((L, 8), np.int64)
         self.b_last = np.zeros(L)
+        self.last_steps = self.photons_per_iteration
         self.b_sum = np.zeros(L)
         self.passes_with_b = 0
 
@@ -177,7 +181,7 @@ class GuidedPhotons(Sppm):
     # -- the iteration -----------------------------------------------------------------------
     def _iterate(self):
         it = self.iterations
-        n_p = self.photons_per_iteration
+        n_p = self._steps_this_pass()
         self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle)
         self.grid.build(self.mp_p, self.mp_radius, self.mp_valid)
         self._prepare_targets()
@@ -200,6 +204,19 @@ class GuidedPhotons(Sppm):
             self.passes_with_b += 1
         self.photons_emitted += n_p
         self.work_done += n_p
+
+    def _steps_this_pass(self) -> int:
+        """At least --photons, and enough that every chain meets ~REGENERATIONS visible uniform
+        proposals: the pass records a chain only after its first one (ChainPool.begin_pass),
+        so a pass too short for that wastes work. Uses the last pass's visible fraction; after a
+        pass that found nothing visible, the next one is twice as long."""
+        n = self.photons_per_iteration
+        if self.iterations > 0:
+            b0 = self.b_last[0]
+            want = self.last_steps * 2 if b0 <= 0 else math.ceil(REGENERATIONS / b0) * self.n_chains
+            n = max(n, min(int(want), MAX_STEPS_PER_PASS))
+        self.last_steps = n
+        return n
 
     def _prepare_targets(self):
         """Per-MP target factors for levels above visibility (none for `visibility`)."""
@@ -231,6 +248,7 @@ class GuidedPhotons(Sppm):
                  for k in range(self.n_levels - 1)}
         s.update({
             "chains": self.n_chains,
+            "photons_last_iteration": self.last_steps,
             "target_acceptance": self.target_acceptance,
             "proposal_failures": "drop" if self.drop_failures else "keep",
             "expected_values": self.expected_values,
