@@ -224,9 +224,11 @@ def test_dropping_proposal_failures_samples_f_times_z():
     assert chi_keep < limit
     assert chi_drop_fz < limit
     assert chi_drop_f > 3 * limit        # p < 1e-20: f itself is firmly rejected
-    # where it shows: the narrow strip (low z) is under-sampled, relative to the square's interior
-    strip_share_f = exact[4:, 1:2].sum() / b
-    strip_share_drop = drop[0][:, 4:, 1:2].sum() / drop[0].sum()
-    print(f"strip's share: target {strip_share_f:.4f}, dropped failures {strip_share_drop:.4f}")
-    assert strip_share_drop < 0.8 * strip_share_f
+    # where it shows: cells where mutations often fail lose weight; the strip most. The size is
+    # small here (about -4 %) because b = 0.275: a quarter of the steps are exact uniform draws.
+    observed = drop[0].sum(axis=0) / drop[0].sum()
+    ratio = np.divide(observed, exact / b, out=np.ones_like(exact), where=exact > 0)
+    lo = np.unravel_index(np.argmin(np.where(exact > 0, ratio, np.inf)), ratio.shape)
+    print(f"dropped failures: weakest cell {lo} at {ratio[lo]:.3f} of its share, strongest {ratio.max():.3f}")
+    assert lo[0] >= 4 and lo[1] == 1, "the narrow strip, where z is lowest, loses most"
     assert last["counters"][0, 7] > 0
