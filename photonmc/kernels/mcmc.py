@@ -10,10 +10,8 @@ each ladder holding `n_levels` replicas:
     states (replica exchange, Gruson et al. 2016).
 Replicas live in slots; the ladder's level->slot table is what an exchange permutes.
 
-Slot state: u[slot, :ell] is the stored prefix of the primary sample vector. Coordinates at
-and beyond `ell` have not been read since they were last drawn, so they are i.i.d. uniform
-and independent of everything the chain decided; a proposal that reads one draws it afresh.
-This is exact and keeps a mutation's cost proportional to the path it builds.
+Slot state: u[slot, :] is the whole primary sample vector (ell = 0 marks an empty slot,
+whose mutations draw fresh coordinates, i.e. are uniform proposals).
 T[slot] holds the state's value under every level's target (exchanges then cost nothing);
 pending[slot][l] is the weight recorded at level l and not yet deposited. Deposits are
 deferred until a state is replaced or the pass ends, so a state that repeats is traced once.
@@ -244,7 +242,6 @@ class ChainPool:
                 mode = UNIFORM_MODE
             key = ti.math.uvec4(s, rng.next_u32(state), level, mode)
             t_new = zero
-            dims = 0
             accept = 0
             a = 0.0
             deposit_key = key
@@ -260,10 +257,9 @@ class ChainPool:
                     trace_key = deposit_key
                     trace_mode = DEPOSIT
                 if phase == 0 or deposit_w.max() > 0.0:
-                    result, used_dims = model.trace(self.source, trace_key, c, trace_mode, deposit_w, deposit_t)
+                    result, _ = model.trace(self.source, trace_key, c, trace_mode, deposit_w, deposit_t)
                     if phase == 0:
                         t_new = result
-                        dims = used_dims
                         accept, a = self._decide(c, level, move, s, t_new, state)
                         if move == 0:
                             uniform_visible = accept
@@ -280,7 +276,7 @@ class ChainPool:
                             deposit_t = t_new
                             self._tally(c, level, t_new, a)
             if accept:
-                self._store(s, key, t_new, dims, move == 0)
+                self._store(s, key, t_new)
                 w_new = 1.0
                 if ti.static(self.expected_values) and move > 0:
                     w_new = a
@@ -379,14 +375,12 @@ class ChainPool:
         self.pending[s] = p
 
     @ti.func
-    def _store(self, s, key, t_new, dims, renew_all):
-        """Slot s takes the proposal named by key (its pending weight was deposited)."""
-        n = ti.max(dims, self.ell[s])
-        if renew_all:
-            n = dims              # a uniform proposal renews every coordinate
-        n = ti.min(n, self.dims)
-        for d in range(n):
+    def _store(self, s, key, t_new):
+        """Slot s takes the proposal named by key (its pending weight was deposited). Every
+        coordinate is stored, so that a state's path is fixed even where its evaluation
+        stopped early (the visibility probe stops at the first accepted vertex)."""
+        for d in range(self.dims):
             self.u[s, d] = self.source.get(key, d)
-        self.ell[s] = n
+        self.ell[s] = self.dims
         self.T[s] = t_new
         self.pending[s] = ti.Vector([0.0] * self.n_levels)

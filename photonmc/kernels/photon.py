@@ -9,7 +9,8 @@ Markov chain can mutate u directly:
 A `source` object supplies coordinates through `source.get(key, dim)`: a hash for plain
 photon tracing, a chain's stored state for MCMC. A `visitor` receives every photon vertex
 on a non-delta surface reached after at least two segments (direct light is computed by
-next-event estimation from the camera side) and returns whether it used it.
+next-event estimation from the camera side) and returns 0 (unused), 1 (used) or 2 (used,
+and stop tracing: a visibility test needs no more).
 trace_photon returns (used, dims): dims bounds the coordinates the path read, which lets a
 Markov chain store only that prefix of u.
 """
@@ -52,7 +53,11 @@ def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.temp
         if b < 0:
             break
         if segments >= 2 and not sc.bsdf_is_delta(b):
-            used |= visitor.visit(vkey, s.p, n, wi, beta, segments)
+            v = visitor.visit(vkey, s.p, n, wi, beta, segments)
+            if v > 0:
+                used = 1
+            if v > 1:         # the visitor has seen enough (e.g. a visibility test)
+                break
         if segments >= max_segments:
             break
         base = LIGHT_DIMS + BOUNCE_DIMS * (segments - 1)

@@ -160,6 +160,8 @@ class GuidedPhotons(Sppm):
             if self.accepts(j, x, n, wi, segments):
                 if probing:
                     hit = 1
+                    if ti.static(self.n_levels == 1):
+                        break
                     if ti.static(self.n_levels > 1):
                         t[1] = ti.max(t[1], self.inv_area[j])
                         if ti.static(self.path_target_sum):
@@ -176,6 +178,8 @@ class GuidedPhotons(Sppm):
         if probing and hit:
             t[0] = 1.0
             self.target_scratch[vkey] = t
+            if ti.static(self.n_levels == 1):
+                hit = 2       # V(u) is known: the rest of the path does not matter
         return hit
 
     # -- the iteration -----------------------------------------------------------------------

@@ -1,0 +1,179 @@
+"""visibility and spatial-tf on scenes: analytic furnace, agreement with sppm, determinism,
+extremes (almost nothing visible, one chain, many chains) and convergence to the reference."""
+import numpy as np
+import pytest
+
+from photonmc import load_scene
+from photonmc.errors import SettingsError
+from photonmc.imageio import read_image
+from photonmc.metrics import downsample, luminance, mean_luminance
+from photonmc.render import Budget, prepare, run
+
+from .conftest import REFS, SCENES, camera_xml
+from .test_pt import furnace_expectation, furnace_xml
+
+GUIDED = ["visibility", "spatial-tf"]
+
+
+def render(scene, method, iterations, seed=0, max_depth=None, **options):
+    p = prepare(scene, method=method, seed=seed, options=options, max_depth=max_depth)
+    r = run(p, Budget(iterations=iterations), quiet=True)
+    p.release()
+    return r
+
+
+@pytest.mark.parametrize("method", GUIDED)
+def test_sphere_furnace(write_scene, method):
+    """Inside an emitting diffuse sphere the answer is analytic and SPPM's density estimate has
+    no blur bias: the Markov-chain estimators must hit it within noise. (Most photon paths are
+    visible here, so this is also the 'easy scene' where guiding must not hurt.)"""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    r = render(scene, method, 60, max_depth=3, photons=4096)
+    lum = luminance(r.image)
+    expected = furnace_expectation(3)
+    spread = lum.std()
+    print(f"{method}: mean {lum.mean():.5f} expected {expected:.5f} spread {spread:.5f} "
+          f"visible {r.stats['uniform_visible_fraction']:.3f}")
+    assert abs(lum.mean() - expected) < 5 * spread / np.sqrt(lum.size) + 0.002 * expected
+    assert np.abs(lum - expected).max() < 6 * spread
+    assert r.stats["levels"][0]["mutations"] > 0
+
+
+def _open_box(write_scene, res=16):
+    """A diffuse box lit by a ceiling light, seen from inside: photons are plentiful (15 % of
+    photon paths deposit; paths ending after their first segment never can, and measurement
+    discs cover only the part of the box the camera sees)."""
+    return load_scene(write_scene(camera_xml(res=res, fov=80, origin="0,0,2.9", target="0,0,0") + """
+        <shape type="cube"><boolean name="flip_normals" value="true"/>
+            <transform name="to_world"><scale x="1" y="1" z="3"/></transform>
+            <bsdf type="diffuse"><rgb name="reflectance" value="0.7,0.6,0.5"/></bsdf></shape>
+        <shape type="cube"><transform name="to_world"><scale value="0.3"/><translate y="-0.7"/></transform>
+            <bsdf type="diffuse"><rgb name="reflectance" value="0.3,0.6,0.3"/></bsdf></shape>
+        <shape type="rectangle"><transform name="to_world"><scale value="0.4"/><rotate x="1" angle="90"/>
+            <translate y="0.99"/></transform>
+            <emitter type="area"><rgb name="radiance" value="4"/></emitter></shape>"""))
+
+
+def test_visibility_and_sppm_agree_where_photons_are_visible(write_scene):
+    """Same radius schedule (fixed radius, alpha near 1), so both estimate the same blurred
+    image: they must agree within noise, measured from the spread of 4x4 block means of the
+    difference (the two renders are independent)."""
+    scene = _open_box(write_scene)
+    opts = {"alpha": 0.999, "radius": 0.08, "photons": 8192}
+    a = render(scene, "sppm", 150, seed=1, **opts)
+    b = render(scene, "visibility", 150, seed=2, **opts)
+    print("visible fraction", b.stats["uniform_visible_fraction"])
+    assert b.stats["uniform_visible_fraction"] > 0.1
+    la, lb = luminance(a.image), luminance(b.image)
+    rel = lb.mean() / la.mean() - 1
+    blocks = downsample(lb - la, 4)
+    noise = blocks.std() / np.sqrt(blocks.size)
+    print(f"visibility/sppm mean {rel:+.4f}; block difference mean {blocks.mean():.5f} +- {noise:.5f}")
+    assert abs(blocks.mean()) < 4 * noise + 1e-3 * la.mean()
+    assert np.abs(blocks).max() < 6 * blocks.std() + 1e-3
+
+
+@pytest.mark.parametrize("method", GUIDED)
+def test_seed_determinism(write_scene, method):
+    scene = _open_box(write_scene, res=12)
+    a = render(scene, method, 4, seed=7)
+    b = render(scene, method, 4, seed=7)
+    c = render(scene, method, 4, seed=8)
+    assert np.array_equal(a.image, b.image)
+    assert not np.array_equal(a.image, c.image)
+
+
+@pytest.mark.parametrize("chains", [1, 4096])
+def test_one_chain_and_many_chains(write_scene, chains):
+    """One chain (every step sequential) and 4096 chains (few steps each) both give sppm's
+    image. Same seed and iterations: the camera passes, hence the direct light, are identical,
+    so the comparison sees only the photons (measured +0.5/-0.1 % and +0.06/0.00 % for two seeds)."""
+    scene = _open_box(write_scene, res=12)
+    opts = {"alpha": 0.999, "radius": 0.1}
+    ref = render(scene, "sppm", 30, seed=4, photons=65536, **opts)
+    r = render(scene, "visibility", 30, seed=4, chains=chains, photons=4096, **opts)
+    assert r.stats["chains"] == chains and np.isfinite(r.image).all()
+    rel = mean_luminance(r.image) / mean_luminance(ref.image) - 1
+    print(f"chains {chains}: mean vs sppm {rel:+.4f}, photons per pass {r.stats['photons_last_iteration']}")
+    assert abs(rel) < 0.015
+
+
+def _needle_scene(write_scene):
+    """A 10 m room lit by a small ceiling light, seen through a 0.3 degree camera: the measurement
+    points cover a few cm^2 of wall, so under 1e-4 of uniform photon paths are visible."""
+    return load_scene(write_scene(camera_xml(res=8, fov=0.3, origin="0,0,4.5", target="0,-1,-5") + """
+        <shape type="cube"><boolean name="flip_normals" value="true"/>
+            <transform name="to_world"><scale value="5"/></transform>
+            <bsdf type="diffuse"><rgb name="reflectance" value="0.7"/></bsdf></shape>
+        <shape type="rectangle"><transform name="to_world"><scale value="0.2"/><rotate x="1" angle="90"/>
+            <translate y="4.99"/></transform>
+            <emitter type="area"><rgb name="radiance" value="50"/></emitter></shape>"""))
+
+
+@pytest.mark.parametrize("method", GUIDED)
+def test_almost_nothing_visible_still_renders(write_scene, method):
+    """Passes lengthen until the chains find the visible set (doubling while nothing is found,
+    then ~10/b steps per chain); no division by zero, no stuck chains, no NaN."""
+    scene = _needle_scene(write_scene)
+    r = render(scene, method, 12, seed=1, chains=4)
+    s = r.stats
+    visible = s["uniform_visible_fraction"]
+    print(f"{method}: visible {visible:.2e}, photons per pass {s['photons_last_iteration']}, levels {s['levels']}")
+    assert 0 < visible < 1e-4
+    assert np.isfinite(r.image).all() and r.image.mean() > 0
+    for level in s["levels"]:
+        assert level["mutations"] > 0 and 0 < level["acceptance"] < 1
+    assert s["nonfinite_samples_dropped"] == 0
+
+
+@pytest.mark.parametrize("options,message", [
+    ({"chains": 0}, "--chains"), ({"target_acceptance": 1.5}, "--target-acceptance"),
+    ({"proposal_failures": "maybe"}, "--proposal-failures"),
+])
+def test_bad_options(options, message):
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})
+    for method in GUIDED:
+        with pytest.raises(SettingsError, match=message):
+            prepare(scene, method=method, options=options)
+    with pytest.raises(SettingsError, match="--path-target"):
+        prepare(scene, method="spatial-tf", options={"path_target": "mean"})
+    with pytest.raises(SettingsError, match="does not take --chains"):
+        prepare(scene, method="sppm", options={"chains": 4})
+    with pytest.raises(SettingsError, match="does not take --path-target"):
+        prepare(scene, method="visibility", options={"path_target": "sum"})
+
+
+@pytest.mark.parametrize("method", GUIDED)
+def test_statistics_reported(write_scene, method):
+    r = render(_open_box(write_scene, res=8), method, 3)
+    s = r.stats
+    n_levels = 1 if method == "visibility" else 3
+    assert len(s["levels"]) == n_levels
+    for level in s["levels"]:
+        assert {"acceptance", "theta", "normalisation_last", "normalisation_mean"} <= set(level)
+    assert 0 < s["uniform_visible_fraction"] <= 1 and s["photon_paths_traced"] > s["photons"]
+    if n_levels > 1:
+        assert set(s["swap_acceptance"]) == {"visibility<->inverse-area", "inverse-area<->spatial"}
+
+
+@pytest.mark.convergence
+@pytest.mark.parametrize("method", GUIDED)
+def test_guided_methods_converge_on_the_light_gap(method):
+    """Against the 65,536-spp Mitsuba reference: RMSE falls between 25 and 100 iterations and
+    the mean luminance ends within 2 % (the slit's grazing-lit faces keep SPPM's boundary
+    bias, which all photon-mapping methods here share: docs/convergence.md)."""
+    ref = read_image(REFS / "light-gap-64.exr")
+    scene = load_scene(SCENES / "light-gap" / "scene.xml", {"res": 64})
+    p = prepare(scene, method=method, seed=1)
+    errors = {}
+
+    def record(m, iteration, elapsed):
+        if iteration in (25, 100):
+            errors[iteration] = (np.sqrt(np.mean((luminance(m.image()) - luminance(ref)) ** 2)),
+                                 mean_luminance(m.image()) / mean_luminance(ref) - 1)
+
+    run(p, Budget(iterations=100), quiet=True, on_iteration=record)
+    p.release()
+    print(f"{method} light-gap (RMSE, mean bias): {errors}")
+    assert errors[100][0] < errors[25][0]
+    assert abs(errors[100][1]) < 0.02
