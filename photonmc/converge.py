@@ -33,6 +33,7 @@ class Checkpoint:
     rmse: float
     relmse: float
     bias: float
+    relmse_cv: float          # spread of per-pixel relMSE (std / mean)
 
 
 def _schedule(total: float, first: float):
@@ -70,7 +71,8 @@ def measure(scene, method: str, reference: np.ndarray, budget: Budget, seed: int
                 img = m.image()
                 points.append(Checkpoint(method, clock, m.iterations, metrics.rmse(img, reference),
                                          metrics.relmse(img, reference, RELMSE_EPS),
-                                         metrics.mean_luminance_bias(img, reference)))
+                                         metrics.mean_luminance_bias(img, reference),
+                                         metrics.relmse_spread(img, reference, RELMSE_EPS)))
             if not pending:
                 break
         return points, m.image().astype(np.float32), m.stats()
@@ -92,10 +94,10 @@ def slope(points: list[Checkpoint], key="rmse") -> float | None:
 def write_csv(path: Path, points: list[Checkpoint]):
     with open(path, "w", newline="") as f:
         out = csv.writer(f)
-        out.writerow(["method", "elapsed_s", "iterations", "rmse", "relmse", "mean_luminance_bias"])
+        out.writerow(["method", "elapsed_s", "iterations", "rmse", "relmse", "mean_luminance_bias", "relmse_cv"])
         for p in points:
             out.writerow([p.method, f"{p.elapsed:.6g}", p.iterations, f"{p.rmse:.6g}", f"{p.relmse:.6g}",
-                          f"{p.bias:.6g}"])
+                          f"{p.bias:.6g}", f"{p.relmse_cv:.6g}"])
 
 
 def write_plot(path: Path, by_method: dict, title: str):
@@ -126,11 +128,12 @@ def write_table(path: Path, by_method: dict, header: str) -> str:
     t_eq = min(p.elapsed for p in finals.values())
     at_eq = {name: _interpolate(pts, t_eq) for name, pts in by_method.items()}
     lines = [header, "",
-             "| method | time [s] | iterations | RMSE | relMSE | mean-luminance bias | RMSE slope vs time |",
-             "|---|---|---|---|---|---|---|"]
+             "| method | time [s] | iterations | RMSE | relMSE | per-pixel relMSE CV | mean-luminance bias "
+             "| RMSE slope vs time |",
+             "|---|---|---|---|---|---|---|---|"]
     for name, p in finals.items():
         s = slope(by_method[name])
-        lines.append(f"| {name} | {p.elapsed:.2f} | {p.iterations} | {p.rmse:.4g} | {p.relmse:.4g} | "
+        lines.append(f"| {name} | {p.elapsed:.2f} | {p.iterations} | {p.rmse:.4g} | {p.relmse:.4g} | {p.relmse_cv:.2f} | "
                      f"{100 * p.bias:+.2f} % | {'n/a' if s is None else f'{s:.2f}'} |")
     lines += ["", f"Equal-time ranking at {t_eq:.2f} s (RMSE, lower is better):", ""]
     for rank, (name, e) in enumerate(sorted(at_eq.items(), key=lambda kv: kv[1]), 1):

@@ -26,6 +26,15 @@ def relmse(img: np.ndarray, ref: np.ndarray, eps: float = 1e-2) -> float:
     return float(np.mean(d * d / (np.asarray(ref, np.float64) ** 2 + eps)))
 
 
+def relmse_spread(img: np.ndarray, ref: np.ndarray, eps: float = 1e-2) -> float:
+    """Coefficient of variation (std / mean over pixels) of per-pixel relMSE: 0 when every
+    pixel has the same relative error (the spatial target's goal, Gruson et al. 2016)."""
+    d = np.asarray(img, np.float64) - np.asarray(ref, np.float64)
+    per_pixel = np.mean(d * d / (np.asarray(ref, np.float64) ** 2 + eps), axis=-1)
+    m = per_pixel.mean()
+    return float(per_pixel.std() / m) if m > 0 else 0.0
+
+
 def mean_luminance_bias(img: np.ndarray, ref: np.ndarray) -> float:
     """Relative difference of mean luminance (img - ref) / ref."""
     r = mean_luminance(ref)

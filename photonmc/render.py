@@ -145,8 +145,10 @@ class ProgressBar:
         elif self.budget.time is not None:
             eta = f"  ETA {max(self.budget.time - elapsed, 0):.1f} s"
         total = f"/{self.budget.iterations}" if self.budget.iterations else ""
+        live = self.method.progress_fields()
+        live = f"  {live}" if live else ""
         sys.stderr.write(f"\r[{self.method.name}] iteration {iteration}{total}  {elapsed:.1f} s  "
-                         f"{_si(rate)} {self.method.work_unit}/s{eta}   ")
+                         f"{_si(rate)} {self.method.work_unit}/s{live}{eta}   ")
         sys.stderr.flush()
 
     def close(self):

@@ -56,6 +56,10 @@ class Method:
     def method_stats(self) -> dict:
         return {}
 
+    def progress_fields(self) -> str:
+        """A few live figures for the progress line (e.g. acceptance rate, mutation size)."""
+        return ""
+
     def reset(self) -> None:
         """Forget all accumulated work but keep compiled kernels (used to exclude compile
         time from measurements: iterate once, reset, then time)."""

@@ -43,7 +43,7 @@ from .sppm import FIXED_ONE, Sppm
 
 REGENERATIONS = 10       # visible uniform proposals each chain should see per pass
 MAX_STEPS_PER_PASS = 1 << 24
-DEFAULT_CHAINS = 64
+DEFAULT_CHAINS = 4        # pass length grows with chains (10 regenerations each); on a CPU more ladders only cost camera passes
 EPS_AREA = 1e-3          # regularisers of the spatial importance (bound its dynamic range)
 EPS_DENSITY = 1e-3
 MAX_CHAINS = 1 << 20
@@ -61,7 +61,6 @@ class GuidedPhotons(Sppm):
     def __init__(self, dscene, settings):
         super().__init__(dscene, settings)
         opts = self.options
-        n_p = self.photons_per_iteration
         self.n_chains = int(opts["chains"] if opts["chains"] is not None else DEFAULT_CHAINS)
         if not 1 <= self.n_chains <= MAX_CHAINS:
             raise SettingsError(f"--chains must be between 1 and {MAX_CHAINS}, got {self.n_chains}")
@@ -268,8 +267,9 @@ class GuidedPhotons(Sppm):
         t = self.totals
         mut = max(int(t[0, MUTATIONS]), 1)
         theta = self.pool.theta.to_numpy()
-        return (f"visible {t[0, UNIFORM_VISIBLE] / max(int(t[0, UNIFORM]), 1):.2g}  "
-                f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}")
+        b = "  ".join(f"b{k} {v:.2g}" for k, v in enumerate(self.b_last))
+        return (f"{super().progress_fields()}  visible {t[0, UNIFORM_VISIBLE] / max(int(t[0, UNIFORM]), 1):.2g}  "
+                f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}  {b}")
 
 
 @ti.data_oriented

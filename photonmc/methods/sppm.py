@@ -275,6 +275,10 @@ class Sppm(Method):
             indirect = self.D.to_numpy() / ne
         return (direct + indirect).reshape(h, w, 3)
 
+    def progress_fields(self) -> str:
+        r = self.R.to_numpy()
+        return f"radius {r[r > 0].mean():.3g}" if (r > 0).any() else ""
+
     def method_stats(self):
         c = self.counters.to_numpy()
         r = self.R.to_numpy()
