@@ -1,4 +1,4 @@
-"""Command line: argument parsing only; the work happens in render.py."""
+"""Command line: argument parsing only; the work happens in loop.py."""
 from __future__ import annotations
 
 import argparse
@@ -22,28 +22,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="photonmc", description="Photon-mapping renderer with MCMC-guided photons.")
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("render", help="render a scene to EXR + PNG")
-    r.add_argument("scene", nargs="?", help="Mitsuba 3 XML scene (default: the bundled Cornell box)")
-    r.add_argument("--method", default="pt", help=f"one of {', '.join(PLANNED)} (default pt)")
-    budget = r.add_mutually_exclusive_group()
-    budget.add_argument("--time", type=float, help="wall-clock budget in seconds")
-    budget.add_argument("--iterations", type=int, help="number of progressive iterations")
-    r.add_argument("--out", default="render.exr", help="output .exr (also writes .png) or .png")
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--arch", default="cpu", choices=["cpu", "cuda", "vulkan"])
-    r.add_argument("--threads", type=int, help="CPU threads (default: all cores)")
-    r.add_argument("--max-depth", type=int, help="override the scene's max_depth (Mitsuba meaning)")
+    _add_render_options(r, default_out="render.exr")
     r.add_argument("--stats", metavar="PATH.json", help="write render statistics as JSON")
-    pm = r.add_argument_group("photon mapping (sppm, visibility, spatial-tf)")
-    pm.add_argument("--photons", type=int, help="photon paths per iteration (default: one per pixel)")
-    pm.add_argument("--alpha", type=float, help="fraction of new photons kept by the radius update (default 2/3)")
-    pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
-                                                 "(default: 2 pixel footprints at each pixel's first hit)")
-    _add_guiding_options(r)
     r.add_argument("--checkpoint", type=float, default=60.0, metavar="SECONDS",
                    help="also write the image every SECONDS while rendering (0: only at the end; default 60)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
-    r.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE",
-                   help="set a scene parameter ($NAME), overriding its <default>")
+    v = sub.add_parser("preview", help="watch a render refine in a window (keys: s save, +/- exposure, "
+                                       "space pause, q quit and save)")
+    _add_render_options(v, default_out="preview.exr", budget_help=" (default: until you quit)")
+    v.add_argument("--frames", metavar="DIR", help="no window: write each frame the window would show "
+                                                   "to DIR/frame-NNNNN.png (needs --time or --iterations)")
     c = sub.add_parser("converge", help="measure error against time for several methods")
     c.add_argument("scene", help="Mitsuba 3 XML scene")
     c.add_argument("--methods", required=True, help="comma-separated, e.g. pt,sppm")
@@ -63,9 +51,31 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _add_render_options(r, default_out: str, budget_help: str = ""):
+    """Options shared by `render` and `preview`: the same render, shown differently."""
+    r.add_argument("scene", nargs="?", help="Mitsuba 3 XML scene (default: the bundled Cornell box)")
+    r.add_argument("--method", default="pt", help=f"one of {', '.join(PLANNED)} (default pt)")
+    budget = r.add_mutually_exclusive_group()
+    budget.add_argument("--time", type=float, help="wall-clock budget in seconds" + budget_help)
+    budget.add_argument("--iterations", type=int, help="number of progressive iterations" + budget_help)
+    r.add_argument("--out", default=default_out, help=f"output .exr (also writes .png) or .png (default {default_out})")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--arch", default="cpu", choices=["cpu", "cuda", "vulkan"])
+    r.add_argument("--threads", type=int, help="CPU threads (default: all cores)")
+    r.add_argument("--max-depth", type=int, help="override the scene's max_depth (Mitsuba meaning)")
+    pm = r.add_argument_group("photon mapping (sppm, visibility, spatial-tf)")
+    pm.add_argument("--photons", type=int, help="photon paths per iteration (default: one per pixel)")
+    pm.add_argument("--alpha", type=float, help="fraction of new photons kept by the radius update (default 2/3)")
+    pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
+                                                 "(default: 2 pixel footprints at each pixel's first hit)")
+    _add_guiding_options(r)
+    r.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE",
+                   help="set a scene parameter ($NAME), overriding its <default>")
+
+
 def _add_guiding_options(parser):
     g = parser.add_argument_group("Markov-chain photon guiding (visibility, spatial-tf)")
-    g.add_argument("--chains", type=int, help="parallel Markov chains (default: photons per iteration / 32)")
+    g.add_argument("--chains", type=int, help="parallel Markov-chain ladders (default 4)")
     g.add_argument("--target-acceptance", type=float,
                    help="acceptance rate the mutation size adapts to (default 0.234)")
     g.add_argument("--proposal-failures", choices=["keep", "drop"],
@@ -87,7 +97,7 @@ def cmd_converge(args) -> int:
     from . import runtime
     from .converge import converge
     from .methods import method_class
-    from .render import Budget
+    from .loop import Budget
     from .scene import load_scene
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
@@ -111,7 +121,7 @@ def cmd_converge(args) -> int:
 
 def cmd_render(args) -> int:
     from . import imageio
-    from .render import Budget, prepare, run, safe_image
+    from .loop import Budget, prepare, run, safe_image
 
     out = imageio.check_output_path(args.out)
     if args.stats and not Path(args.stats).resolve().parent.is_dir():
@@ -149,6 +159,25 @@ def cmd_render(args) -> int:
     return 130 if result.interrupted else 0
 
 
+def cmd_preview(args) -> int:
+    from .loop import Budget, default_scene_path
+    from .methods import method_class
+    from .preview import Job, preview
+    from .scene import load_scene
+
+    method_class(args.method)
+    params = dict(args.defines)
+    scene_path = str(args.scene or default_scene_path())
+    scene = load_scene(scene_path, params)      # fail here, before a window opens, on a bad scene
+    for w in scene.warnings:
+        print(f"photonmc: warning: {w}", file=sys.stderr)
+    budget = Budget(time=args.time, iterations=args.iterations,
+                    until_stopped=args.time is None and args.iterations is None)
+    job = Job(scene=scene_path, params=params, method=args.method, budget=budget, seed=args.seed,
+              max_depth=args.max_depth, arch=args.arch, threads=args.threads, options=_method_options(args))
+    return preview(job, args.out, frames_dir=args.frames, shape=(scene.camera.height, scene.camera.width))
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -156,6 +185,8 @@ def main(argv=None) -> int:
             return cmd_render(args)
         if args.command == "converge":
             return cmd_converge(args)
+        if args.command == "preview":
+            return cmd_preview(args)
     except PhotonmcError as e:
         print(f"photonmc: error: {e}", file=sys.stderr)
         return 2

@@ -19,7 +19,7 @@ import numpy as np
 from . import imageio, metrics
 from .errors import PhotonmcError
 from .methods import method_class
-from .render import Budget, prepare
+from .loop import Budget, prepare
 
 RELMSE_EPS = 1e-2          # relMSE = mean(d^2 / (ref^2 + eps)), eps in the image's units
 CHECKPOINT_GROWTH = 1.5

@@ -5,7 +5,7 @@ import numpy as np
 
 from photonmc.cli import main
 from photonmc.imageio import read_image, write_image
-from photonmc.render import Budget, prepare, run
+from photonmc.loop import Budget, prepare, run
 
 from .conftest import SCENES
 

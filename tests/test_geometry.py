@@ -110,7 +110,7 @@ def test_released_scenes_free_their_field_trees(write_scene):
     """Taichi allows ~512 field trees per process; a scene and its method each use one and
     give it back on release(), so a test session or a long-lived tool can render many scenes."""
     from photonmc import load_scene
-    from photonmc.render import prepare
+    from photonmc.loop import prepare
     from .conftest import camera_xml
     scene = load_scene(write_scene(camera_xml(res=4) + '<shape type="sphere"><boolean name="flip_normals" '
                                    'value="true"/><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>'))

@@ -5,7 +5,7 @@ import pytest
 from photonmc import load_scene
 from photonmc.imageio import read_image, read_metadata
 from photonmc.metrics import downsample, luminance, mean_luminance
-from photonmc.render import Budget, prepare, run
+from photonmc.loop import Budget, prepare, run
 
 from .conftest import REFS, SCENES, camera_xml
 

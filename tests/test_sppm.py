@@ -9,7 +9,7 @@ from photonmc.imageio import read_image, read_metadata
 from photonmc.kernels.fields import FieldGroup
 from photonmc.kernels.hashgrid import HashGrid
 from photonmc.metrics import downsample, luminance, mean_luminance
-from photonmc.render import Budget, prepare, run
+from photonmc.loop import Budget, prepare, run
 
 from .conftest import REFS, SCENES, camera_xml
 from .test_pt import furnace_expectation, furnace_xml

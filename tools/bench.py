@@ -89,7 +89,7 @@ def bench_bvh(n_rays):
 
 def bench_pt(iterations):
     from photonmc import load_scene
-    from photonmc.render import Budget, default_scene_path, prepare, run
+    from photonmc.loop import Budget, default_scene_path, prepare, run
 
     path = default_scene_path()
     scene = load_scene(path)
@@ -122,7 +122,7 @@ def bench_sppm(iterations, res=512):
     """Photon paths/s and iteration time of sppm on the Cornell box at res x res, one photon
     path per pixel per iteration (SmallVCM's setting); the iteration includes the camera pass."""
     from photonmc import load_scene
-    from photonmc.render import default_scene_path, prepare
+    from photonmc.loop import default_scene_path, prepare
 
     scene = load_scene(default_scene_path(), {"res": res})
     p = prepare(scene, method="sppm")

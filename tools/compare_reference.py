@@ -32,7 +32,7 @@ def main():
     from photonmc import load_scene, runtime
     from photonmc.imageio import read_image, read_metadata
     from photonmc.metrics import downsample, luminance, mean_luminance
-    from photonmc.render import Budget, prepare, run
+    from photonmc.loop import Budget, prepare, run
 
     runtime.init()
     ref = read_image(args.reference)

@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from photonmc.imageio import read_image  # noqa: E402
 from photonmc.metrics import mean_luminance_bias, rmse  # noqa: E402
-from photonmc.render import Budget, prepare, run  # noqa: E402
+from photonmc.loop import Budget, prepare, run  # noqa: E402
 from photonmc.scene import load_scene  # noqa: E402
 
 

@@ -28,12 +28,18 @@ from .scene import Scene, load_scene
 class Budget:
     time: float | None = None          # wall seconds; stop after the first iteration past it
     iterations: int | None = None
+    until_stopped: bool = False        # no limit at all (the preview runs until the user quits)
 
     def __post_init__(self):
         if self.time is not None and not (self.time > 0 and math.isfinite(self.time)):
             raise SettingsError(f"--time must be a positive number of seconds, got {self.time}")
         if self.iterations is not None and self.iterations < 1:
             raise SettingsError(f"--iterations must be at least 1, got {self.iterations}")
+
+    def or_default(self, iterations: int) -> "Budget":
+        """This budget, or `iterations` iterations when it sets no limit."""
+        unlimited = self.time is None and self.iterations is None and not self.until_stopped
+        return Budget(iterations=iterations) if unlimited else self
 
     def done(self, iterations: int, elapsed: float) -> bool:
         if self.iterations is not None and iterations >= self.iterations:
@@ -85,10 +91,15 @@ def prepare(scene, method: str = "pt", seed: int = 0, max_depth: int | None = No
 
 class StopRequest:
     """Set by Ctrl-C / SIGTERM: the loop finishes the iteration in flight and stops.
-    A second Ctrl-C aborts at once."""
+    A second Ctrl-C aborts at once. Subclasses (the preview) also pause the loop."""
 
     def __init__(self):
         self.requested = False
+
+    def hold(self) -> float:
+        """Called between iterations; waits while paused and returns the seconds it waited
+        (excluded from the elapsed time and the --time budget). Never pauses here."""
+        return 0.0
 
     @contextmanager
     def installed(self):
@@ -111,15 +122,39 @@ class StopRequest:
 
 
 def progressive(method, budget: Budget, stop: StopRequest | None = None):
-    """Run iterations until the budget is spent; yields (iteration, elapsed, iteration_time)."""
+    """Run iterations until the budget is spent (never, for an unlimited one) or a stop is
+    requested; yields (iteration, elapsed, iteration_time). Paused time is not elapsed."""
     start = time.perf_counter()
+    paused = 0.0
     while True:
         t = time.perf_counter()
         method.iterate()
         now = time.perf_counter()
-        yield method.iterations, now - start, now - t
-        if budget.done(method.iterations, now - start) or (stop is not None and stop.requested):
+        elapsed = now - start - paused
+        yield method.iterations, elapsed, now - t
+        if budget.done(method.iterations, elapsed) or (stop is not None and stop.requested):
             return
+        if stop is not None:
+            paused += stop.hold()
+            if stop.requested:
+                return
+
+
+class RateMeter:
+    """Work per second (method.work_unit), counted from the end of the first iteration so
+    that kernel compilation does not count."""
+
+    def __init__(self, method):
+        self.method = method
+        self.first = None
+        self.rate = 0.0
+
+    def update(self, elapsed: float) -> float:
+        if self.first is None:
+            self.first = (elapsed, self.method.work_done)
+        span = elapsed - self.first[0]
+        self.rate = (self.method.work_done - self.first[1]) / span if span > 0 else 0.0
+        return self.rate
 
 
 class ProgressBar:
@@ -129,16 +164,13 @@ class ProgressBar:
         self.method, self.budget = method, budget
         self.enabled = enabled and sys.stderr.isatty()
         self.last = 0.0
-        self.first = None
+        self.meter = RateMeter(method)
 
     def update(self, iteration, elapsed, force=False):
         if not self.enabled or (not force and time.perf_counter() - self.last < 0.2):
             return
         self.last = time.perf_counter()
-        if self.first is None:             # rate from the end of the first iteration: no compile time
-            self.first = (elapsed, self.method.work_done)
-        span = elapsed - self.first[0]
-        rate = (self.method.work_done - self.first[1]) / span if span > 0 else 0.0
+        rate = self.meter.update(elapsed)
         eta = ""
         if self.budget.iterations is not None and iteration > 0:
             eta = f"  ETA {elapsed / iteration * (self.budget.iterations - iteration):.1f} s"
@@ -148,7 +180,7 @@ class ProgressBar:
         live = self.method.progress_fields()
         live = f"  {live}" if live else ""
         sys.stderr.write(f"\r[{self.method.name}] iteration {iteration}{total}  {elapsed:.1f} s  "
-                         f"{_si(rate)} {self.method.work_unit}/s{live}{eta}   ")
+                         f"{si(rate)} {self.method.work_unit}/s{live}{eta}   ")
         sys.stderr.flush()
 
     def close(self):
@@ -156,7 +188,8 @@ class ProgressBar:
             sys.stderr.write("\n")
 
 
-def _si(x: float) -> str:
+def si(x: float) -> str:
+    """A rate with an SI prefix: 1.23 M."""
     for unit, scale in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
         if x >= scale:
             return f"{x / scale:.2f} {unit}"
@@ -175,12 +208,14 @@ class RunResult:
     interrupted: bool
 
 
-def run(prepared: Prepared, budget: Budget, quiet: bool = False, on_iteration=None) -> RunResult:
-    """The whole progressive render with progress, interrupt handling and statistics."""
+def run(prepared: Prepared, budget: Budget, quiet: bool = False, on_iteration=None,
+        stop: StopRequest | None = None) -> RunResult:
+    """The whole progressive render with progress, interrupt handling and statistics.
+    A budget with no limit means the method's default number of iterations. `stop` lets a
+    caller (the preview) stop and pause the loop besides Ctrl-C."""
     m = prepared.method
-    if budget.time is None and budget.iterations is None:
-        budget = Budget(iterations=m.default_iterations)
-    stop = StopRequest()
+    budget = budget.or_default(m.default_iterations)
+    stop = stop or StopRequest()
     bar = ProgressBar(m, budget, enabled=not quiet)
     iteration_times = []
     elapsed = 0.0
