@@ -176,3 +176,34 @@ def test_window_answers_during_a_long_iteration(xvfb, tmp_path):
     finally:
         if win.proc.poll() is None:
             win.proc.kill()
+
+
+def test_pause_holds_the_loop_and_is_not_counted_as_render_time():
+    """The preview's pause acts between iterations of the shared loop; the paused time is
+    left out of the elapsed time (and so of a --time budget)."""
+    import multiprocessing as mp
+    import threading
+
+    from photonmc.loop import Budget, progressive
+    from photonmc.preview import PreviewControl
+
+    class Sleeper:
+        iterations = 0
+
+        def iterate(self):
+            time.sleep(0.05)
+            self.iterations += 1
+
+    stop, pause = mp.Event(), mp.Event()
+    control = PreviewControl(stop, pause)
+    pause.set()
+    threading.Timer(0.5, pause.clear).start()
+    t = time.perf_counter()
+    steps = list(progressive(Sleeper(), Budget(iterations=3), control))
+    wall = time.perf_counter() - t
+    assert [s[0] for s in steps] == [1, 2, 3]
+    assert wall > 0.5 and steps[-1][1] < 0.35          # 3 x 0.05 s of work, 0.5 s paused
+    stop.set()
+    assert control.requested
+    steps = list(progressive(Sleeper(), Budget(until_stopped=True), control))
+    assert len(steps) == 1                              # a stop ends even an unlimited budget
