@@ -121,6 +121,8 @@ def _render_process(job: Job, conn, stop_event, pause_event):
         conn.send(("frame", m.iterations, result.stats["wall_seconds"]["render"], result.image,
                    meter.rate, m.progress_fields().strip()))
         conn.send(("done", result.stats))
+    except (BrokenPipeError, EOFError):
+        pass                # the window process has gone: nobody to render for
     except PhotonmcError as e:
         conn.send(("error", str(e)))
     except Exception:   # noqa: BLE001 - reported in the window process, with the traceback
@@ -235,8 +237,8 @@ class Preview:
         finally:
             screen.close()
             child.join(QUIT_WAIT)
-            if child.is_alive():
-                child.terminate()
+            if child.is_alive():      # SIGKILL: the render process takes SIGTERM as "finish the iteration"
+                child.kill()
                 child.join()
         self.save()
         return 0

@@ -165,13 +165,13 @@ def test_window_answers_during_a_long_iteration(xvfb, tmp_path):
     win = Window(xvfb, tmp_path, CORNELL, "-D", "res=32", "--method", "sppm", "--photons", "200000000",
                  "--out", str(tmp_path / "long.exr"))
     try:
-        time.sleep(1.0)
+        time.sleep(5.0)           # into the first iteration (~100 s of photons on 2 cores)
         t = time.time()
         while win.proc.poll() is None and time.time() - t < 30:
             win.key("q", check=False)   # repeated: a key sent before the window listens is lost
             time.sleep(0.5)
-        assert win.proc.wait(1) == 0
-        assert time.time() - t < 10
+        assert win.proc.wait(1) == 0, win.text()
+        assert time.time() - t < 10, win.text()
         assert "nothing rendered yet" in win.text()     # the first iteration was still running
     finally:
         if win.proc.poll() is None:
