@@ -14,7 +14,7 @@ from .kernels.sampling import luminance
 class Film:
     def __init__(self, width: int, height: int):
         self.width, self.height = width, height
-        self.fields = FieldGroup()
+        self.fields = FieldGroup("film")
         self.sum = self.fields.vector(3, ti.f64, (height, width))
         self.sum_sq = self.fields.scalar(ti.f64, (height, width))    # of luminance, for error bars
         self.nonfinite = self.fields.scalar(ti.i64)

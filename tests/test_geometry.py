@@ -106,17 +106,48 @@ def test_closest_hit_matches_brute_force():
     assert np.array_equal(any_kind >= 0, hit)
 
 
-def test_released_scenes_free_their_field_trees(write_scene):
-    """Taichi allows ~512 field trees per process; a scene and its method each use one and
-    give it back on release(), so a test session or a long-lived tool can render many scenes."""
+def test_released_field_trees_are_recycled_and_bounded(write_scene):
+    """A released render's fields go to a pool: the next render of the same scene takes the
+    same fields (so its kernels are found compiled), and the pool stays bounded, since Taichi
+    allows ~512 field trees per process."""
     from photonmc import load_scene
+    from photonmc.film import Film
+    from photonmc.kernels import fields
     from photonmc.loop import prepare
     from .conftest import camera_xml
     scene = load_scene(write_scene(camera_xml(res=4) + '<shape type="sphere"><boolean name="flip_normals" '
                                    'value="true"/><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>'))
     p = prepare(scene)
-    ids = (p.dscene.fields._tree.id, p.method.film.fields._tree.id)
+    film_sum, scene_fields = p.method.film.sum, p.dscene.fields._own.fields
+    p.method.film.sum.fill(3.0)
     p.release()
     q = prepare(scene)
-    assert (q.dscene.fields._tree.id, q.method.film.fields._tree.id) in (ids, ids[::-1])
+    assert q.method.film.sum is film_sum and q.dscene.fields._reused.fields is scene_fields
+    assert q.method.film.sum.to_numpy().max() == 0.0          # recycled fields start zeroed
     q.release()
+    films = [Film(4 + i, 3) for i in range(fields.POOL_MAX_GROUPS + 8)]
+    allocations = [film.fields._own for film in films]
+    for film in films:
+        film.release()
+    pooled = [a for v in fields._pool.values() for a in v]
+    assert len(pooled) <= fields.POOL_MAX_GROUPS and all(a.tree is not None for a in pooled)
+    assert sum(a.tree is None for a in allocations) >= 8        # the oldest were destroyed
+
+
+def test_a_group_that_shares_only_a_prefix_with_a_pooled_one_gets_zeroed_fields():
+    """Pooled fields are handed out in order while the specs match; where they diverge the
+    rest are new. Every field handed out starts at zero, as a fresh one does."""
+    import taichi as ti
+    from photonmc.kernels.fields import FieldGroup
+    g = FieldGroup("prefix-test")
+    a, b = g.scalar(ti.f32, 4), g.scalar(ti.f32, 5)
+    g.finalize()
+    a.fill(1.0)
+    b.fill(2.0)
+    g.release()
+    h = FieldGroup("prefix-test")
+    c, d = h.scalar(ti.f32, 4), h.scalar(ti.f32, 6, values=np.arange(6))
+    h.finalize()
+    assert c is a and d is not b
+    assert c.to_numpy().max() == 0.0 and np.array_equal(d.to_numpy(), np.arange(6))
+    h.release()

@@ -54,7 +54,7 @@ class ToyModel:
     def __init__(self, levels, chains, kind="strip"):
         self.levels, self.kind_id = levels, KINDS[kind]
         self.chains = chains
-        f = FieldGroup()
+        f = FieldGroup("toy-model")
         self.hist = f.scalar(ti.f64, (levels, GROUPS, BINS, BINS))
         f.finalize()
         self.fields = f

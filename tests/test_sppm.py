@@ -40,7 +40,7 @@ def test_hash_grid_matches_brute_force(n):
     p = rng.uniform(-3, 3, (n, 3)).astype(np.float32)
     r = rng.uniform(0.01, 0.4, n).astype(np.float32)
     v = (rng.random(n) < 0.9).astype(np.int32)
-    f = FieldGroup()
+    f = FieldGroup("test-points")
     pos, rad, valid = f.vector(3, ti.f32, n, p), f.scalar(ti.f32, n, r), f.scalar(ti.i32, n, v)
     f.finalize()
     grid = HashGrid(n)

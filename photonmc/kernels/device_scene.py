@@ -41,7 +41,7 @@ class DeviceScene:
         # since float32 round-off grows with coordinate magnitude.
         self.ray_eps = float(2e-5 * max(np.linalg.norm(hi - lo), np.abs(np.stack([lo, hi])).max()))
         self.extent = float(np.linalg.norm(hi - lo))
-        self.fields = FieldGroup()
+        self.fields = FieldGroup("scene")
         self._upload_geometry(scene)
         self._upload_materials(scene)
         self._upload_lights(scene)

@@ -24,7 +24,7 @@ class HashGrid:
         while size < 2 * n_points:
             size *= 2
         self.table_size = size
-        self.fields = FieldGroup()
+        self.fields = FieldGroup(f"hash-grid-{n_points}")
         self.cell_count = self.fields.scalar(ti.i32, size)
         self.cell_start = self.fields.scalar(ti.i32, size)
         self.cell_fill = self.fields.scalar(ti.i32, size)

@@ -113,7 +113,7 @@ class ChainPool:
         self.n_slots = n_chains * n_levels
         self.drop_failures = bool(drop_failures)
         self.expected_values = bool(expected_values)
-        f = FieldGroup()
+        f = FieldGroup("chains")
         self.u = f.scalar(ti.f32, (self.n_slots, dims))
         self.ell = f.scalar(ti.i32, self.n_slots)
         self.T = f.vector(n_levels, ti.f32, self.n_slots)

@@ -80,7 +80,7 @@ class GuidedPhotons(Sppm):
         self.expected_values = bool(opts["expected_values"])
         self.pool = ChainPool(self.n_chains, self.n_levels, dimensions(self.max_photon_segments),
                               self.drop_failures, self.expected_values)
-        f = FieldGroup()
+        f = FieldGroup(f"guided-{self.name}")
         L, n, c = self.n_levels, self.n_pixels, self.n_chains
         self.target_scratch = f.vector(L, ti.f32, c)
         self.visit_mode = f.scalar(ti.i32, c)

@@ -81,7 +81,7 @@ class Sppm(Method):
         self.photons_emitted = 0
         self.photon_paths_used = 0
 
-        f = FieldGroup()
+        f = FieldGroup(f"sppm-{self.n_levels}-levels")
         n = self.n_pixels
         # This iteration's measurement points (one per pixel).
         self.mp_p = f.vector(3, ti.f32, n)
