@@ -154,12 +154,12 @@ class ChainPool:
         the chain exact), and a higher level only once seeded from a fresh level below."""
         for fld in (self.counters, self.recorded, self.ratio, self.fresh):
             fld.fill(0)
-        self._reevaluate(model)
+        self._visit_states(model, PROBE)
 
     def run(self, model, seed: int, iteration: int, steps: int):
         """`steps` chain steps in all, spread over the ladders, then deposit every pending weight."""
         self._run(model, seed, iteration, steps)
-        self._flush_all(model)
+        self._visit_states(model, DEPOSIT)
 
     def tallies(self) -> dict:
         """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l]."""
@@ -192,16 +192,6 @@ class ChainPool:
 
     # -- kernels ------------------------------------------------------------------------
     @ti.kernel
-    def _reevaluate(self, model: ti.template()):
-        for c in range(self.n_chains):
-            for level in range(self.n_levels):
-                s = self.level_slot[c, level]
-                t = ti.Vector([0.0] * self.n_levels)
-                if self.ell[s] > 0:
-                    t, _ = model.trace(self.source, ti.math.uvec4(s, 0, 0, STATE_MODE), c, PROBE, t, t)
-                self.T[s] = t
-
-    @ti.kernel
     def _run(self, model: ti.template(), seed: ti.u32, iteration: ti.u32, steps: ti.i32):
         base = steps // self.n_chains
         extra = steps % self.n_chains
@@ -212,14 +202,27 @@ class ChainPool:
                 self._step(model, c, state)
 
     @ti.kernel
-    def _flush_all(self, model: ti.template()):
+    def _visit_states(self, model: ti.template(), mode: ti.i32):
+        """PROBE: re-evaluate every stored state's targets (they changed). DEPOSIT: deposit
+        every pending weight. One kernel and one trace call site for both: every inlined copy
+        of the photon tracer costs seconds of compilation."""
         for c in range(self.n_chains):
             for level in range(self.n_levels):
                 s = self.level_slot[c, level]
+                zero = ti.Vector([0.0] * self.n_levels)
                 w = self.pending[s]
-                if w.max() > 0.0:
-                    model.trace(self.source, ti.math.uvec4(s, 0, 0, STATE_MODE), c, DEPOSIT, w, self.T[s])
-                self.pending[s] = ti.Vector([0.0] * self.n_levels)
+                t = self.T[s]
+                if mode == PROBE:
+                    w = zero
+                    t = zero
+                if (mode == PROBE and self.ell[s] > 0) or (mode == DEPOSIT and w.max() > 0.0):
+                    result, _ = model.trace(self.source, ti.math.uvec4(s, 0, 0, STATE_MODE), c, mode, w, t)
+                    if mode == PROBE:
+                        t = result
+                if mode == PROBE:
+                    self.T[s] = t
+                else:
+                    self.pending[s] = zero
 
     # -- one step of one ladder ------------------------------------------------------------
     @ti.func
