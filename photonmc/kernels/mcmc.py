@@ -126,6 +126,7 @@ class ChainPool:
         # recorded weight per level, and sum of T[l+1]/T[l] over level-l records.
         self.recorded = f.scalar(ti.f64, (n_chains, n_levels))
         self.ratio = f.scalar(ti.f64, (n_chains, n_levels))
+        self.uniform_T = f.scalar(ti.f64, (n_chains, n_levels))   # sum of T_l over uniform proposals
         f.finalize()
         self.fields = f
         self.source = _ChainSource(self)
@@ -137,7 +138,8 @@ class ChainPool:
 
     def reset(self):
         """Empty every chain (they restart from uniform proposals) and theta."""
-        for fld in (self.u, self.ell, self.T, self.pending, self.counters, self.recorded, self.ratio, self.fresh):
+        for fld in (self.u, self.ell, self.T, self.pending, self.counters, self.recorded, self.ratio, self.fresh,
+                    self.uniform_T):
             fld.fill(0)
         self.level_slot.from_numpy(np.arange(self.n_slots, dtype=np.int32).reshape(self.n_chains, self.n_levels))
         self.theta.fill(THETA_START)
@@ -152,7 +154,7 @@ class ChainPool:
         light-gap, docs/guiding.md). So a pass records level 0 only from its first visible
         uniform proposal on (an exact draw from the new target, after which Metropolis keeps
         the chain exact), and a higher level only once seeded from a fresh level below."""
-        for fld in (self.counters, self.recorded, self.ratio, self.fresh):
+        for fld in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T):
             fld.fill(0)
         self._visit_states(model, PROBE)
 
@@ -166,8 +168,10 @@ class ChainPool:
         c = self.counters.to_numpy()
         rec = self.recorded.to_numpy().sum(axis=0)
         ratio = self.ratio.to_numpy().sum(axis=0)
+        n_uniform = max(int(c[0, UNIFORM]), 1)
         return {"counters": c, "recorded": rec,
-                "mean_ratio": np.divide(ratio, rec, out=np.zeros_like(ratio), where=rec > 0)}
+                "mean_ratio": np.divide(ratio, rec, out=np.zeros_like(ratio), where=rec > 0),
+                "uniform_mean": self.uniform_T.to_numpy().sum(axis=0) / n_uniform}
 
     def normalisations(self, tallies: dict) -> np.ndarray:
         """b_0 = visible fraction of uniform proposals; b_{l+1} = b_l E_{T_l}[T_{l+1}/T_l]
@@ -299,6 +303,8 @@ class ChainPool:
         accept = 0
         if move == 0:
             ti.atomic_add(self.counters[0, UNIFORM], 1)
+            for k in ti.static(range(self.n_levels)):
+                self.uniform_T[c, k] += ti.cast(t_new[k], ti.f64)
             if t_new[0] > 0.0:
                 ti.atomic_add(self.counters[0, UNIFORM_VISIBLE], 1)
                 accept = 1

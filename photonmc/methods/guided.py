@@ -114,6 +114,7 @@ class GuidedPhotons(Sppm):
         self.b_last = np.zeros(L)
         self.last_steps = self.photons_per_iteration
         self.b_sum = np.zeros(L)
+        self.b_uniform_sum = np.zeros(L)
         self.passes_with_b = 0
 
     # -- the model interface of ChainPool -------------------------------------------------
@@ -211,6 +212,7 @@ class GuidedPhotons(Sppm):
         self.b_last = b
         if b[0] > 0:
             self.b_sum += b
+            self.b_uniform_sum += tallies["uniform_mean"]
             self.passes_with_b += 1
         self.photons_emitted += n_p
         self.work_done += n_p
@@ -255,6 +257,8 @@ class GuidedPhotons(Sppm):
                 "failures_dropped": int(t[level, FAILURES_DROPPED]),
                 "normalisation_last": float(self.b_last[level]),
                 "normalisation_mean": float(self.b_sum[level] / self.passes_with_b) if self.passes_with_b else None,
+                "normalisation_uniform_mean": (float(self.b_uniform_sum[level] / self.passes_with_b)
+                                               if self.passes_with_b else None),
             })
         swaps = {f"{self.level_names[k]}<->{self.level_names[k + 1]}":
                  (float(t[k, SWAPS_ACCEPTED]) / t[k, SWAPS_TRIED] if t[k, SWAPS_TRIED] else None)
