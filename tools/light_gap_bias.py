@@ -19,11 +19,8 @@ sys.path.insert(0, str(ROOT))
 
 from photonmc import load_scene, render
 from photonmc.imageio import read_image
+from photonmc.metrics import luminance
 from tests.test_guided import _slit_band
-
-
-def luminance(a):
-    return a[..., 0] * 0.2126 + a[..., 1] * 0.7152 + a[..., 2] * 0.0722
 
 
 def main():
