@@ -11,6 +11,21 @@ REPO = Path(__file__).resolve().parent.parent
 SCENES = REPO / "scenes"
 REFS = Path(__file__).resolve().parent / "refs"
 
+# Every bundled scene but the gap-lit room (its own tests) with its Mitsuba reference in refs/
+# and the scene parameters that give the reference's resolution.
+SCENE_REFERENCES = [
+    ("cornell-box", "cornell-box-64.exr", {"res": 64}),
+    ("mitsuba-style", "mitsuba-style-80x60.exr", {"resx": 80, "resy": 60}),
+    ("mesh-room", "mesh-room-64.exr", {"res": 64}),
+    ("caustic", "caustic-64.exr", {"res": 64}),
+]
+
+
+def half_resolution(params: dict) -> dict:
+    """The same scene at half the reference's resolution: a box-filtered image's mean does not
+    depend on the resolution, and a quarter of the pixels is a quarter of the work."""
+    return {k: v // 2 for k, v in params.items()}
+
 
 @pytest.fixture(scope="session", autouse=True)
 def taichi_cpu():

@@ -6,10 +6,10 @@ import pytest
 from photonmc import load_scene
 from photonmc.errors import SettingsError
 from photonmc.imageio import read_image
-from photonmc.metrics import downsample, luminance, mean_luminance
 from photonmc.loop import Budget, prepare, run
+from photonmc.metrics import downsample, luminance, mean_luminance
 
-from .conftest import REFS, SCENES, camera_xml
+from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml, half_resolution
 from .test_pt import furnace_expectation, furnace_xml
 
 GUIDED = ["visibility", "spatial-tf"]
@@ -209,3 +209,20 @@ def test_guided_methods_converge_on_the_light_gap(method):
     assert abs(errors[400]["outside"]) < 0.02
     assert abs(errors[400]["band"]) < abs(errors[50]["band"])
     assert max(abs(d) for d in drift) < 0.01
+
+
+@pytest.mark.convergence
+@pytest.mark.parametrize("name,ref_file,params", SCENE_REFERENCES, ids=[r[0] for r in SCENE_REFERENCES])
+@pytest.mark.parametrize("method", GUIDED)
+def test_guided_methods_match_mitsuba_on_every_bundled_scene(method, name, ref_file, params):
+    """The criterion sppm meets on the same scenes (tests/test_sppm.py): mean luminance within
+    1 % of Mitsuba's reference after 400 iterations, every pixel finite. Half resolution (the
+    mean does not depend on it); measured -0.76 % to +0.06 % (docs/convergence.md), where a
+    stale chain or a biased normalisation showed as -3 % to +7 % (docs/guiding.md)."""
+    ref = read_image(REFS / ref_file)
+    scene = load_scene(SCENES / name / "scene.xml", half_resolution(params))
+    img = render(scene, method, 400, seed=1).image
+    assert np.isfinite(img).all()
+    bias = mean_luminance(img) / mean_luminance(ref) - 1
+    print(f"{method} {name}: mean-luminance bias {100 * bias:+.2f} %")
+    assert abs(bias) < 0.01

@@ -11,7 +11,7 @@ from photonmc.kernels.hashgrid import HashGrid
 from photonmc.metrics import downsample, luminance, mean_luminance
 from photonmc.loop import Budget, prepare, run
 
-from .conftest import REFS, SCENES, camera_xml
+from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml
 from .test_pt import furnace_expectation, furnace_xml
 
 
@@ -190,14 +190,6 @@ def test_pt_rejects_photon_options():
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})
     with pytest.raises(SettingsError, match="does not take --photons"):
         prepare(scene, method="pt", options={"photons": 10})
-
-
-SCENE_REFERENCES = [
-    ("cornell-box", "cornell-box-64.exr", {"res": 64}),
-    ("mitsuba-style", "mitsuba-style-80x60.exr", {"resx": 80, "resy": 60}),
-    ("mesh-room", "mesh-room-64.exr", {"res": 64}),
-    ("caustic", "caustic-64.exr", {"res": 64}),
-]
 
 
 @pytest.mark.convergence

@@ -6,19 +6,18 @@ docs/convergence.md).
 """
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
 
 from photonmc import load_scene
 from photonmc.imageio import read_image
 from photonmc.loop import Budget, prepare, run
 from photonmc.metrics import mean_luminance
-
-# Half the references' resolution: the mean of a box-filtered image does not depend on it.
-CASES = [("cornell-box", "cornell-box-64.exr", {"res": 32}),
-         ("mitsuba-style", "mitsuba-style-80x60.exr", {"resx": 40, "resy": 30}),
-         ("mesh-room", "mesh-room-64.exr", {"res": 32}),
-         ("caustic", "caustic-64.exr", {"res": 32})]
+from tests.conftest import SCENE_REFERENCES, half_resolution
 
 
 def main():
@@ -26,9 +25,9 @@ def main():
     methods = (sys.argv[2] if len(sys.argv) > 2 else "visibility,spatial-tf").split(",")
     print("| scene | method | iterations | finite | mean vs Mitsuba | seconds (compile included) |")
     print("|---|---|---|---|---|---|")
-    for name, ref, params in CASES:
-        scene = load_scene(f"scenes/{name}/scene.xml", params)
-        ref_mean = mean_luminance(read_image(f"tests/refs/{ref}"))
+    for name, ref, params in SCENE_REFERENCES:
+        scene = load_scene(ROOT / "scenes" / name / "scene.xml", half_resolution(params))
+        ref_mean = mean_luminance(read_image(ROOT / "tests" / "refs" / ref))
         for method in methods:
             start = time.time()
             p = prepare(scene, method=method, seed=1)
