@@ -43,13 +43,16 @@ from .sppm import FIXED_ONE, Sppm
 
 REGENERATIONS = 10       # visible uniform proposals each chain should see per pass
 MAX_STEPS_PER_PASS = 1 << 24
-# Ladders (more than one level) chain each pass's normalisations b_{l+1} = b_l * E[ratio]
-# from the same short, correlated chains whose states they weight: a ratio estimator whose
-# bias grows with measurement points per chain step and does not average out over passes.
-# Measured on the gap-lit room, frozen radius, against sppm: 32x32 with 256 steps per ladder
-# -3.7 %, with 1024 -0.3 %; 64x64 with 1024 -3.1 %, with 4096 -1.2 % (docs/guiding.md,
-# "Short-pass bias of the ladder"). So a pass runs at least one step per measurement point.
-MIN_STEPS_PER_LADDER = 1024
+# A ladder's upper levels start each pass as copies of level 0's state and burn in within the
+# pass; the exchanges pass their states down to level 0 too, so no level is exact until the
+# ladder has mixed. Recorded from the start, this made spatial-tf several % dark on short
+# passes (gap-lit room, 32x32, 256 steps per ladder and pass: -3.4 %; 64x64, 1024 steps:
+# -3.1 %), which longer passes (a step per pixel per ladder) only reduced. Discarding the
+# first half of each pass removes it (+0.1 % and -0.1 +- 0.2 %; docs/guiding.md, "Burn-in of
+# the ladder"). visibility's single chain is exact from its first visible uniform proposal
+# and discards nothing.
+LADDER_BURN_IN = 0.5
+MIN_STEPS_PER_LADDER = 256   # so that the burn-in spans some mixing even where --photons is tiny
 DEFAULT_CHAINS = 4        # pass length grows with chains (10 regenerations each); on a CPU more ladders only cost camera passes
 EPS_AREA = 1e-3          # regularisers of the spatial importance (bound its dynamic range)
 EPS_DENSITY = 1e-3
@@ -79,7 +82,8 @@ class GuidedPhotons(Sppm):
         self.drop_failures = opts["proposal_failures"] == "drop"
         self.expected_values = bool(opts["expected_values"])
         self.pool = ChainPool(self.n_chains, self.n_levels, dimensions(self.max_photon_segments),
-                              self.drop_failures, self.expected_values)
+                              self.drop_failures, self.expected_values,
+                              burn_in=LADDER_BURN_IN if self.n_levels > 1 else 0.0)
         f = FieldGroup(f"guided-{self.name}")
         L, n, c = self.n_levels, self.n_pixels, self.n_chains
         self.target_scratch = f.vector(L, ti.f32, c)
@@ -221,11 +225,11 @@ class GuidedPhotons(Sppm):
         """At least --photons, and enough that every chain meets ~REGENERATIONS visible uniform
         proposals: the pass records a chain only after its first one (ChainPool.begin_pass),
         so a pass too short for that wastes work. Uses the last pass's visible fraction; after a
-        pass that found nothing visible, the next one is twice as long. Ladders run at least
-        one step per measurement point per chain (ratio-estimator bias, MIN_STEPS_PER_LADDER)."""
+        pass that found nothing visible, the next one is twice as long. Ladders, which discard
+        their first half (LADDER_BURN_IN), run at least MIN_STEPS_PER_LADDER steps."""
         n = self.photons_per_iteration
         if self.n_levels > 1:
-            n = max(n, max(MIN_STEPS_PER_LADDER, self.n_pixels) * self.n_chains)
+            n = max(n, MIN_STEPS_PER_LADDER * self.n_chains)
         if self.iterations > 0:
             b0 = self.b_last[0]
             want = self.last_steps * 2 if b0 <= 0 else math.ceil(REGENERATIONS / b0) * self.n_chains
