@@ -40,6 +40,11 @@ N_COUNTERS = 8
 
 THETA_MIN, THETA_MAX = 1e-4, 1.0        # clamps of the mutation-size parameter
 THETA_START = 0.5
+# Taichi's CPU backend hands a parallel loop to its threads in blocks of at least 512
+# iterations (block_dim is chosen adaptively there; ti.loop_config's block_dim is for GPUs),
+# so a loop over 4 ladders ran on one thread. On the CPU each ladder therefore owns a block of
+# CPU_LADDER_STRIDE loop iterations and only the first does the work (docs/performance.md).
+CPU_LADDER_STRIDE = 512
 FRESH_SALT = 0x5BD1E995                 # separates fresh coordinates from mutation offsets
 
 
@@ -134,6 +139,7 @@ class ChainPool:
         f.finalize()
         self.fields = f
         self.source = _ChainSource(self)
+        self.stride = CPU_LADDER_STRIDE if ti.lang.impl.current_cfg().arch == ti.cpu else 1
         self.adapt_passes = np.zeros(n_levels, np.int64)
         self.reset()
 
@@ -170,7 +176,7 @@ class ChainPool:
         and the exchanges pass these burning-in states down to level 0 too: the whole ladder is
         out of equilibrium until it has mixed, and recording it from the start biased
         spatial-tf by -3.4 % on the gap-lit room at 32x32 (256 steps per ladder and pass),
-        +0.1 % with the first half discarded (docs/guiding.md). Level 0 alone (visibility)
+        +0.2 % with the first half discarded (docs/guiding.md). Level 0 alone (visibility)
         is exact from its first visible uniform proposal and needs none."""
         self._run(model, seed, iteration, steps, self.burn_in)
         self._visit_states(model, DEPOSIT)
@@ -211,20 +217,25 @@ class ChainPool:
     def _run(self, model: ti.template(), seed: ti.u32, iteration: ti.u32, steps: ti.i32, burn_in: ti.f32):
         base = steps // self.n_chains
         extra = steps % self.n_chains
-        for c in range(self.n_chains):
-            state = rng.seed(seed, ti.u32(c), iteration * ti.u32(2) + ti.u32(1))
-            n = base + (1 if c < extra else 0)
-            burn = ti.cast(burn_in * n, ti.i32)
-            for i in range(n):
-                self.recording[c] = 1 if i >= burn else 0
-                self._step(model, c, state)
+        for item in range(self.n_chains * ti.static(self.stride)):
+            if item % ti.static(self.stride) == 0:
+                c = item // ti.static(self.stride)
+                state = rng.seed(seed, ti.u32(c), iteration * ti.u32(2) + ti.u32(1))
+                n = base + (1 if c < extra else 0)
+                burn = ti.cast(burn_in * n, ti.i32)
+                for i in range(n):
+                    self.recording[c] = 1 if i >= burn else 0
+                    self._step(model, c, state)
 
     @ti.kernel
     def _visit_states(self, model: ti.template(), mode: ti.i32):
         """PROBE: re-evaluate every stored state's targets (they changed). DEPOSIT: deposit
         every pending weight. One kernel and one trace call site for both: every inlined copy
         of the photon tracer costs seconds of compilation."""
-        for c in range(self.n_chains):
+        for item in range(self.n_chains * ti.static(self.stride)):
+            if item % ti.static(self.stride) != 0:
+                continue
+            c = item // ti.static(self.stride)
             for level in range(self.n_levels):
                 s = self.level_slot[c, level]
                 zero = ti.Vector([0.0] * self.n_levels)

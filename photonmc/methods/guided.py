@@ -48,7 +48,7 @@ MAX_STEPS_PER_PASS = 1 << 24
 # ladder has mixed. Recorded from the start, this made spatial-tf several % dark on short
 # passes (gap-lit room, 32x32, 256 steps per ladder and pass: -3.4 %; 64x64, 1024 steps:
 # -3.1 %), which longer passes (a step per pixel per ladder) only reduced. Discarding the
-# first half of each pass removes it (+0.1 % and -0.1 +- 0.2 %; docs/guiding.md, "Burn-in of
+# first half of each pass removes it (+0.2 % and -0.1 +- 0.2 %; docs/guiding.md, "Burn-in of
 # the ladder"). visibility's single chain is exact from its first visible uniform proposal
 # and discards nothing.
 LADDER_BURN_IN = 0.5
