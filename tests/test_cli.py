@@ -97,12 +97,14 @@ def test_malformed_scene_gives_one_line_error(tmp_path):
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "malformed XML" in r.stderr
 
 
-def test_same_seed_same_image_for_any_thread_count(tmp_path):
+@pytest.mark.parametrize("method", ["pt", "spatial-tf"])
+def test_same_seed_same_image_for_any_thread_count(tmp_path, method):
+    """spatial-tf: its ladders run in parallel (kernels/mcmc.py), two per thread with 2."""
     images = []
     for threads in ("1", "2"):
         out = tmp_path / f"t{threads}.exr"
-        r = photonmc("render", *SMALL, "--iterations", "4", "--seed", "9", "--threads", threads,
-                     "--quiet", "--out", str(out))
+        r = photonmc("render", *SMALL, "--method", method, "--iterations", "4", "--seed", "9",
+                     "--threads", threads, "--quiet", "--out", str(out))
         assert r.returncode == 0, r.stderr
         images.append(read_image(out))
     assert np.array_equal(images[0], images[1])
