@@ -22,13 +22,15 @@ def render(scene, method, iterations, seed=0, max_depth=None, **options):
     return r
 
 
-@pytest.mark.parametrize("method", GUIDED)
-def test_sphere_furnace(write_scene, method):
+@pytest.mark.parametrize("method,options", [("visibility", {}), ("spatial-tf", {}),
+                                            ("spatial-tf", {"expected_values": True})],
+                         ids=["visibility", "spatial-tf", "spatial-tf-expected-values"])
+def test_sphere_furnace(write_scene, method, options):
     """Inside an emitting diffuse sphere the answer is analytic and SPPM's density estimate has
     no blur bias: the Markov-chain estimators must hit it within noise. (Most photon paths are
     visible here, so this is also the 'easy scene' where guiding must not hurt.)"""
     scene = load_scene(write_scene(furnace_xml("sphere")))
-    r = render(scene, method, 60, max_depth=3, photons=4096)
+    r = render(scene, method, 60, max_depth=3, photons=4096, **options)
     lum = luminance(r.image)
     expected = furnace_expectation(3)
     spread = lum.std()

@@ -164,11 +164,13 @@ def test_burn_in_removes_the_ladders_start_up_bias():
     limit = sps.chi2.ppf(0.999, int((exact[0] > 0).sum()))      # every level has the same support
     recorded_from_start = chi2s(passes=16, steps_per_chain=50)
     burnt_in = chi2s(passes=16, steps_per_chain=50, burn_in=0.5)
+    burnt_in_ev = chi2s(passes=16, steps_per_chain=50, burn_in=0.5, ev=True)     # expected values too
     level0_short = chi2s(passes=40, steps_per_chain=20)[0][0]
-    print("chi2 without burn-in", recorded_from_start, "with", burnt_in, "level 0 at 20 steps", level0_short)
+    print("chi2 without burn-in", recorded_from_start, "with", burnt_in, "with expected values", burnt_in_ev,
+          "level 0 at 20 steps", level0_short)
     assert all(chi2 > limit for chi2, _ in recorded_from_start[1:])
     assert level0_short > limit
-    assert all(chi2 < sps.chi2.ppf(0.999, dof) for chi2, dof in burnt_in)
+    assert all(chi2 < limit for chi2, _ in burnt_in + burnt_in_ev)
 
 
 def test_adaptation_reaches_the_target_acceptance():
