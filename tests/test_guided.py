@@ -215,16 +215,22 @@ def test_guided_methods_converge_on_the_light_gap(method):
 
 @pytest.mark.convergence
 @pytest.mark.parametrize("name,ref_file,params", SCENE_REFERENCES, ids=[r[0] for r in SCENE_REFERENCES])
-@pytest.mark.parametrize("method", GUIDED)
-def test_guided_methods_match_mitsuba_on_every_bundled_scene(method, name, ref_file, params):
-    """The criterion sppm meets on the same scenes (tests/test_sppm.py): mean luminance within
-    1 % of Mitsuba's reference after 400 iterations, every pixel finite. Half resolution (the
-    mean does not depend on it); measured -0.76 % to +0.06 % (docs/convergence.md), where a
-    stale chain or a biased normalisation showed as -3 % to +7 % (docs/guiding.md)."""
-    ref = read_image(REFS / ref_file)
+def test_guided_methods_match_sppm_and_mitsuba_on_every_bundled_scene(name, ref_file, params):
+    """400 iterations at half resolution (the mean does not depend on it), seed 1, every pixel
+    finite. Against sppm with the same settings, whose camera passes and radii the guided
+    methods share: their photons must add no bias of their own, mean luminance within 1 %
+    (measured at most 0.58 % over seeds 1-3 on the 4 scenes; a stale chain or a biased
+    normalisation showed as -3 % to +7 %, docs/guiding.md). Against Mitsuba: within 2 %, room
+    for the radius bias all three share at these settings (sppm itself -1.25 % on the Cornell
+    box with seed 2; tests/test_sppm.py holds sppm to 1 % at full resolution)."""
+    ref_mean = mean_luminance(read_image(REFS / ref_file))
     scene = load_scene(SCENES / name / "scene.xml", half_resolution(params))
-    img = render(scene, method, 400, seed=1).image
-    assert np.isfinite(img).all()
-    bias = mean_luminance(img) / mean_luminance(ref) - 1
-    print(f"{method} {name}: mean-luminance bias {100 * bias:+.2f} %")
-    assert abs(bias) < 0.01
+    means = {}
+    for method in ["sppm", *GUIDED]:
+        img = render(scene, method, 400, seed=1).image
+        assert np.isfinite(img).all(), method
+        means[method] = mean_luminance(img)
+    print(f"{name}: " + ", ".join(f"{m} {100 * (v / ref_mean - 1):+.2f} % vs Mitsuba" for m, v in means.items()))
+    for method in GUIDED:
+        assert abs(means[method] / means["sppm"] - 1) < 0.01, f"{method} differs from sppm"
+        assert abs(means[method] / ref_mean - 1) < 0.02, f"{method} differs from Mitsuba"
