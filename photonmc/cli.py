@@ -47,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--alpha", type=float)
     c.add_argument("--radius", type=float)
     _add_guiding_options(c)
+    _add_vcm_options(c)
     c.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE")
     return p
 
@@ -69,6 +70,7 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
     pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
                                                  "(default: 2 pixel footprints at each pixel's first hit)")
     _add_guiding_options(r)
+    _add_vcm_options(r)
     r.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE",
                    help="set a scene parameter ($NAME), overriding its <default>")
 
@@ -87,10 +89,19 @@ def _add_guiding_options(parser):
                    help="spatial-tf: a path's target is the max (default) or sum of the importance of the points it hits")
 
 
+def _add_vcm_options(parser):
+    g = parser.add_argument_group("vertex connection and merging (vcm; --alpha and --radius as above, "
+                                  "default alpha 0.75 and 2 pixel footprints at the median first-hit distance)")
+    g.add_argument("--light-paths", type=int, help="light subpaths per iteration (default: one per pixel)")
+    g.add_argument("--techniques", help="vcm (default: all), bpt (no merging), bpm (merging only), "
+                                        "lt (light tracing only)")
+
+
 def _method_options(args) -> dict:
     return {"photons": args.photons, "alpha": args.alpha, "radius": args.radius, "chains": args.chains,
             "target_acceptance": args.target_acceptance, "proposal_failures": args.proposal_failures,
-            "expected_values": args.expected_values, "path_target": args.path_target}
+            "expected_values": args.expected_values, "path_target": args.path_target,
+            "light_paths": args.light_paths, "techniques": args.techniques}
 
 
 def cmd_converge(args) -> int:

@@ -59,3 +59,79 @@ class Film:
 
     def dropped(self) -> int:
         return int(self.nonfinite[None])
+
+
+FIXED_STEPS = 4294967296.0      # 2^32 fixed-point steps per radiance_scale
+FIXED_LIMIT = 2.0e9             # in radiance_scale units: i64 holds 2^31 of them with room to sum
+
+
+@ti.data_oriented
+class SplatFilm:
+    """A film that samples may reach at any pixel (light tracing, merging), deterministically.
+
+    Within an iteration contributions are summed in 64-bit integer fixed point (one step is
+    radiance_scale / 2^32): integer atomics do not depend on the order in which threads add,
+    so a seed gives the same image for any thread count. flush() adds the iteration's frame
+    to the float64 Film as one sample per pixel. A contribution that is not finite, or beyond
+    2e9 x radiance_scale, is dropped and counted."""
+
+    def __init__(self, width: int, height: int, radiance_scale: float):
+        self.width, self.height = width, height
+        self.film = Film(width, height)
+        self.unit = float(radiance_scale) / FIXED_STEPS
+        self.fields = FieldGroup("splat-film")
+        self.frame = self.fields.vector(3, ti.i64, (height, width))
+        self.nonfinite = self.fields.scalar(ti.i64)
+        self.fields.finalize()
+
+    def release(self):
+        self.fields.release()
+        self.film.release()
+
+    def reset(self):
+        self.frame.fill(0)
+        self.nonfinite.fill(0)
+        self.film.reset()
+
+    @ti.func
+    def fixed(self, rgb):
+        """rgb in fixed point (rounded to the nearest step), or zero and counted if unusable."""
+        out = ti.Vector([0, 0, 0], ti.i64)
+        scaled = ti.cast(rgb, ti.f64) * ti.f64(1.0 / self.unit)
+        if (scaled == scaled).all() and scaled.max() < ti.static(FIXED_LIMIT * FIXED_STEPS) and scaled.min() >= 0.0:
+            out = ti.cast(ti.cast(scaled, ti.f64) + 0.5, ti.i64)
+        else:
+            ti.atomic_add(self.nonfinite[None], 1)
+        return out
+
+    @ti.func
+    def add_fixed(self, y: ti.i32, x: ti.i32, value):
+        for c in ti.static(range(3)):
+            ti.atomic_add(self.frame[y, x][c], value[c])
+
+    @ti.func
+    def splat(self, y: ti.i32, x: ti.i32, rgb):
+        self.add_fixed(y, x, self.fixed(rgb))
+
+    @ti.kernel
+    def _flush(self):
+        for y, x in ti.ndrange(self.height, self.width):
+            self.film.add(y, x, ti.cast(self.frame[y, x], ti.f64) * ti.f64(self.unit))
+            self.frame[y, x] = ti.Vector([0, 0, 0], ti.i64)
+
+    def flush(self):
+        """End of an iteration: its frame becomes one sample of every pixel."""
+        self._flush()
+        self.film.samples_per_pixel += 1
+
+    def clear_frame(self):
+        self.frame.fill(0)
+
+    def mean(self) -> np.ndarray:
+        return self.film.mean()
+
+    def standard_error(self) -> np.ndarray:
+        return self.film.standard_error()
+
+    def dropped(self) -> int:
+        return int(self.nonfinite[None]) + self.film.dropped()

@@ -22,14 +22,14 @@ def sample_many(kind: ti.i32, eta: ti.f32, wo: vec3, radiance: ti.i32, seed: ti.
         u1 = rng.next_float(state)
         u2 = rng.next_float(state)
         u3 = rng.next_float(state)
-        s = bsdf.BsdfSample(wi=vec3(0.0), weight=vec3(0.0), pdf_w=0.0, delta=0, eta=1.0, ok=0)
+        s = bsdf.BsdfSample(wi=vec3(0.0), weight=vec3(0.0), pdf_fwd_w=0.0, pdf_rev_w=0.0, delta=0, eta=1.0, ok=0)
         if radiance:
             s = bsdf.sample(KINDS, kind, vec3(0.5, 0.6, 0.7), vec3(1.0), eta, wo, u1, u2, u3, True)
         else:
             s = bsdf.sample(KINDS, kind, vec3(0.5, 0.6, 0.7), vec3(1.0), eta, wo, u1, u2, u3, False)
         wi[i] = s.wi
         weight[i] = s.weight
-        pdf[i] = s.pdf_w
+        pdf[i] = s.pdf_fwd_w
         ok[i] = s.ok
         p = bsdf.pdf_w(KINDS, kind, wo, s.wi)
         pdf_again[i] = p

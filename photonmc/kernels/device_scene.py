@@ -16,11 +16,19 @@ from ..scene.bvh import build_bvh
 from ..scene.scene import DIELECTRIC, Scene
 from . import bsdf as bsdf_mod
 from .fields import FieldGroup
-from .sampling import uniform_sphere, uniform_triangle, vec3
+from .sampling import INV_PI, cosine_hemisphere, onb, to_world, uniform_sphere, uniform_triangle, vec3
 
 Hit = ti.types.struct(t=ti.f32, kind=ti.i32, prim=ti.i32, b1=ti.f32, b2=ti.f32)
 Surface = ti.types.struct(p=vec3, ng=vec3, ns=vec3, material=ti.i32, emitter=ti.i32, light_pdf_a=ti.f32)
 LightSample = ti.types.struct(p=vec3, n=vec3, radiance=vec3, pdf_a=ti.f32)
+# Emitters for both directions (pdfs include the choice of the light; docs/vcm.md):
+# an emitted ray for a light subpath, a point chosen toward a shading point (next-event
+# estimation), and the pdfs of an emitter point that a camera path hit.
+Emission = ti.types.struct(p=vec3, n=vec3, d=vec3, radiance=vec3, emission_pdf_w=ti.f32, direct_pdf_a=ti.f32,
+                           cos_light=ti.f32)
+Illumination = ti.types.struct(p=vec3, n=vec3, wi=vec3, dist=ti.f32, radiance=vec3, direct_pdf_w=ti.f32,
+                               emission_pdf_w=ti.f32, cos_light=ti.f32)
+EmitterHit = ti.types.struct(radiance=vec3, direct_pdf_a=ti.f32, emission_pdf_w=ti.f32)
 
 MISS, TRIANGLE, SPHERE = -1, 0, 1
 STACK_SIZE = 32     # the SAH build has depth ~18 at 80k triangles; deeper trees are refused
@@ -141,6 +149,19 @@ class DeviceScene:
         self.cam_y = ti.Vector(list(m[:, 1]))
         self.cam_z = ti.Vector(list(m[:, 2]))
         self.tan_x, self.tan_y = cam.tan_half
+        # For light tracing: world -> camera-local rows (to_world need not be orthonormal).
+        # camera_ray samples uniformly the parallelogram {lx*x + ly*y + z}: a plane with unit
+        # normal cam_forward at distance cam_plane_dist, cam_pixel_area per pixel.
+        inv = np.linalg.inv(m)
+        self.cam_inv0, self.cam_inv1, self.cam_inv2 = (ti.Vector(list(inv[k])) for k in range(3))
+        cross = np.cross(m[:, 0], m[:, 1])
+        normal = cross / np.linalg.norm(cross)
+        if normal @ m[:, 2] < 0:
+            normal = -normal
+        self.cam_forward = ti.Vector(list(normal))
+        self.cam_plane_dist = float(normal @ m[:, 2])
+        self.cam_pixel_area = float(np.linalg.norm(cross) * (2.0 * self.tan_x / self.width)
+                                    * (2.0 * self.tan_y / self.height))
 
     # -- ray queries -------------------------------------------------------------------
     @ti.func
@@ -373,6 +394,15 @@ class DeviceScene:
     def bsdf_is_delta(self, b: ti.i32) -> ti.i32:
         return bsdf_mod.is_delta(self.bsdf_kind[b])
 
+    @ti.func
+    def bsdf_evaluate(self, b: ti.i32, wo_local, wi_local):
+        """f (no cosine) with the pdfs of wi given wo (forward) and wo given wi (reverse)."""
+        return bsdf_mod.evaluate(self.kinds, self.bsdf_kind[b], self.bsdf_color[b], wo_local, wi_local)
+
+    @ti.func
+    def bsdf_continuation(self, b: ti.i32) -> ti.f32:
+        return bsdf_mod.continuation(self.kinds, self.bsdf_kind[b], self.bsdf_color[b], self.bsdf_trans[b])
+
     # -- emitters ----------------------------------------------------------------------
     @ti.func
     def emitted(self, emitter: ti.i32, ns, wo):
@@ -412,6 +442,45 @@ class DeviceScene:
         ls.pdf_a = self.light_pick[lo] / self.light_area[lo]
         return ls
 
+    @ti.func
+    def emit(self, u0: ti.f32, u1: ti.f32, u2: ti.f32, u3: ti.f32, u4: ti.f32):
+        """A ray leaving an emitter: point by power then area (u0..u2), direction cosine-
+        weighted about the emitter's normal (u3, u4). emission_pdf_w = pdf_a * cos/pi."""
+        ls = self.sample_light(u0, u1, u2)
+        t1, t2 = onb(ls.n)
+        local = cosine_hemisphere(u3, u4)
+        e = Emission(p=ls.p, n=ls.n, d=to_world(local, t1, t2, ls.n), radiance=ls.radiance,
+                     emission_pdf_w=ls.pdf_a * local.z * INV_PI, direct_pdf_a=ls.pdf_a, cos_light=local.z)
+        return e
+
+    @ti.func
+    def illuminate(self, p, u0: ti.f32, u1: ti.f32, u2: ti.f32):
+        """A point on an emitter for next-event estimation at p: direction, distance, the
+        pdf of the point in solid angle at p, and the emission pdf of the reverse ray.
+        radiance is zero where the emitter faces away from p."""
+        ls = self.sample_light(u0, u1, u2)
+        il = Illumination(p=ls.p, n=ls.n, wi=vec3(0.0, 0.0, 1.0), dist=0.0, radiance=vec3(0.0), direct_pdf_w=0.0,
+                          emission_pdf_w=0.0, cos_light=0.0)
+        to_l = ls.p - p
+        dist2 = to_l.dot(to_l)
+        if dist2 > 0.0:
+            il.dist = ti.sqrt(dist2)
+            il.wi = to_l / il.dist
+            il.cos_light = -il.wi.dot(ls.n)
+            if il.cos_light > 0.0:
+                il.radiance = ls.radiance
+                il.direct_pdf_w = ls.pdf_a * dist2 / il.cos_light
+                il.emission_pdf_w = ls.pdf_a * il.cos_light * INV_PI
+        return il
+
+    @ti.func
+    def emitter_hit(self, s, wo):
+        """Radiance toward wo at a surface a camera path hit, with the pdfs other techniques
+        would have sampled this emitter point with (area for NEE, emitted ray for light paths)."""
+        eh = EmitterHit(radiance=self.emitted(s.emitter, s.ns, wo), direct_pdf_a=s.light_pdf_a, emission_pdf_w=0.0)
+        eh.emission_pdf_w = s.light_pdf_a * ti.abs(s.ns.dot(wo)) * INV_PI
+        return eh
+
     # -- camera ------------------------------------------------------------------------
     @ti.func
     def camera_ray(self, px: ti.i32, py: ti.i32, u1: ti.f32, u2: ti.f32):
@@ -421,6 +490,32 @@ class DeviceScene:
         local = vec3((1.0 - 2.0 * sx) * self.tan_x, (1.0 - 2.0 * sy) * self.tan_y, 1.0)
         d = (local.x * self.cam_x + local.y * self.cam_y + local.z * self.cam_z).normalized()
         return self.cam_origin, d
+
+    @ti.func
+    def camera_pdf_w(self, d) -> ti.f32:
+        """Solid-angle density at the camera of direction d for one sample per pixel (the
+        image-plane-to-solid-angle factor): 1 / (pixel area at unit distance * cos^3)."""
+        cos = d.dot(self.cam_forward)
+        pdf = 0.0
+        if cos > 0.0:
+            pdf = self.cam_plane_dist * self.cam_plane_dist / (self.cam_pixel_area * cos * cos * cos)
+        return pdf
+
+    @ti.func
+    def camera_raster(self, p):
+        """(ok, x, y): film position in pixels of the world point p seen by the camera,
+        the inverse of camera_ray; ok is 0 behind the camera or outside the film."""
+        v = p - self.cam_origin
+        local = vec3(v.dot(self.cam_inv0), v.dot(self.cam_inv1), v.dot(self.cam_inv2))
+        ok = 0
+        x = 0.0
+        y = 0.0
+        if local.z > 0.0:
+            x = 0.5 * (1.0 - local.x / (local.z * self.tan_x)) * self.width
+            y = 0.5 * (1.0 - local.y / (local.z * self.tan_y)) * self.height
+            if 0.0 <= x < self.width and 0.0 <= y < self.height:
+                ok = 1
+        return ok, x, y
 
 
 def _lum(rgb):

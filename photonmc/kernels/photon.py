@@ -18,7 +18,8 @@ import math
 
 import taichi as ti
 
-from .sampling import cosine_hemisphere, onb, to_local, to_world
+from . import vcm_mis
+from .sampling import onb, to_local, to_world
 
 LIGHT_DIMS = 5
 BOUNCE_DIMS = 4
@@ -32,15 +33,24 @@ def dimensions(max_segments: int) -> int:
 
 @ti.func
 def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.template(), vkey, max_segments: ti.i32):
-    """Trace one photon path; returns (1 if the visitor used any vertex, coordinates read)."""
+    """Trace one photon (light subpath); returns (1 if the visitor used any vertex, coordinates read).
+
+    The visitor's class says what it needs, at compile time: `visits_from_segment` (SPPM: 2,
+    direct light being the camera side's; VCM: 1) and `with_mis`: whether the path carries
+    the VCM partial sums (kernels/vcm_mis.py, with the visitor's `mis_constants()`), in which
+    case it gets the whole vertex, `visit_vertex(vkey, PathVertex)`, instead of
+    `visit(vkey, x, n, wi, beta, segments)`."""
     used = 0
     dims = LIGHT_DIMS
-    ls = sc.sample_light(source.get(key, 0), source.get(key, 1), source.get(key, 2))
-    t1, t2 = onb(ls.n)
-    d = to_world(cosine_hemisphere(source.get(key, 3), source.get(key, 4)), t1, t2, ls.n)
-    # Power carried: Le cos / (pdf_a * pdf_w) with pdf_w = cos/pi.
-    beta = ls.radiance * (math.pi / ls.pdf_a)
-    o = sc.spawn(ls.p, ls.n, d)
+    em = sc.emit(source.get(key, 0), source.get(key, 1), source.get(key, 2), source.get(key, 3), source.get(key, 4))
+    d = em.d
+    # Power carried: Le cos / emission_pdf_w, with emission_pdf_w = pdf_a cos/pi.
+    beta = em.radiance * (math.pi / em.direct_pdf_a)
+    o = sc.spawn(em.p, em.n, d)
+    prev_p = em.p
+    m = vcm_mis.SubpathMis(dvcm=0.0, dvc=0.0, dvm=0.0)
+    if ti.static(visitor.with_mis):
+        m = vcm_mis.light_start(em.direct_pdf_a, em.emission_pdf_w, em.cos_light, visitor.mis_constants())
     segments = 0
     while segments < max_segments:
         hit = sc.trace(o, d, ti.math.inf, False)
@@ -52,8 +62,16 @@ def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.temp
         b, n = sc.side_bsdf(s.material, s.ns, wi)
         if b < 0:
             break
-        if segments >= 2 and not sc.bsdf_is_delta(b):
-            v = visitor.visit(vkey, s.p, n, wi, beta, segments)
+        if ti.static(visitor.with_mis):
+            vcm_mis.after_hit(m, (s.p - prev_p).norm_sqr(), n.dot(wi))
+        if segments >= ti.static(visitor.visits_from_segment) and not sc.bsdf_is_delta(b):
+            v = 0
+            if ti.static(visitor.with_mis):
+                v = visitor.visit_vertex(vkey, vcm_mis.PathVertex(p=s.p, ng=s.ng, n=n, wo=wi, beta=beta,
+                                                                  length=segments, bsdf=b, dvcm=m.dvcm, dvc=m.dvc,
+                                                                  dvm=m.dvm))
+            else:
+                v = visitor.visit(vkey, s.p, n, wi, beta, segments)
             if v > 0:
                 used = 1
             if v > 1:         # the visitor has seen enough (e.g. a visibility test)
@@ -67,11 +85,15 @@ def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.temp
                             source.get(key, base + 2), False)
         if not bs.ok:
             break
-        # Roulette keeps the photon's power near constant: survive with the BSDF weight.
-        q = ti.min(1.0, bs.weight.max())
+        # Roulette by the material's continuation probability (its albedo: the photon's power
+        # stays near constant), which depends on the vertex alone, as MIS needs.
+        q = sc.bsdf_continuation(b)
         if source.get(key, base + 3) >= q:
             break
         beta *= bs.weight / q
+        if ti.static(visitor.with_mis):
+            vcm_mis.after_scatter(m, bs.delta, bs.wi.z, bs.pdf_fwd_w * q, bs.pdf_rev_w * q, visitor.mis_constants())
         d = to_world(bs.wi, f1, f2, n)
         o = sc.spawn(s.p, s.ng, d)
+        prev_p = s.p
     return used, dims

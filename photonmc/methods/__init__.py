@@ -6,7 +6,7 @@ from .base import Method, MethodSettings
 
 # All methods photonmc is designed to offer; those not yet built are refused by name.
 PLANNED = ("pt", "sppm", "visibility", "spatial-tf", "vcm", "mbe")
-AVAILABLE = ("pt", "sppm", "visibility", "spatial-tf")
+AVAILABLE = ("pt", "sppm", "visibility", "spatial-tf", "vcm")
 
 
 def method_class(name: str):
@@ -22,6 +22,9 @@ def method_class(name: str):
     if name == "spatial-tf":
         from .guided import SpatialTarget
         return SpatialTarget
+    if name == "vcm":
+        from .vcm import Vcm
+        return Vcm
     if name in PLANNED:
         raise SettingsError(f"method '{name}' is not implemented yet in this version of photonmc "
                             f"(available: {', '.join(AVAILABLE)})")

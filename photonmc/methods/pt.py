@@ -101,7 +101,7 @@ class PathTracer(Method):
             d = to_world(bs.wi, t1, t2, n)
             beta *= bs.weight
             eta_scale *= bs.eta
-            prev_pdf_w = bs.pdf_w
+            prev_pdf_w = bs.pdf_fwd_w
             prev_delta = bs.delta
             if beta.max() <= 0.0:
                 break

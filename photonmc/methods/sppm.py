@@ -55,6 +55,10 @@ class Sppm(Method):
     default_iterations = 100
     OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False}
     n_levels = 1          # flux accumulators per measurement point (one per Markov-chain level)
+    # What trace_photon hands this visitor: vertices after the first segment (direct light is
+    # the camera pass's), without the VCM partial sums.
+    visits_from_segment = 2
+    with_mis = False
 
     def __init__(self, dscene, settings):
         super().__init__(dscene, settings)

@@ -1,0 +1,463 @@
+"""Vertex connection and merging (Georgiev et al. 2012; docs/vcm.md).
+
+Each iteration:
+1. light pass: `--light-paths` light subpaths (N_L) from the emitters, traced by the photon
+   tracer with the MIS partial sums (kernels/vcm_mis.py); every non-delta vertex is stored
+   and, where light tracing is on, connected to the camera and splatted to its pixel;
+2. the stored vertices are put in path order (for connections) and in a hash grid of the
+   iteration's radius r_i = r_1 i^((alpha-1)/2) (for merging);
+3. camera pass: one subpath per pixel; at every vertex emitter hits, at every non-delta
+   vertex next-event estimation, connections to the vertices of the light subpath with the
+   pixel's index, and merging with the light vertices within r_i;
+4. the iteration's frame (fixed point, SplatFilm) becomes one sample of every pixel.
+All contributions are weighted by the balance heuristic over every enabled technique.
+
+Techniques (`--techniques`, SmallVCM's variants, one estimator with static flags):
+vcm (all), bpt (no merging), bpm (merging only; emitters seen through delta chains),
+lt (light tracing only, plus emitters seen directly: it cannot see through mirrors or glass).
+"""
+import math
+
+import numpy as np
+import taichi as ti
+
+from ..errors import SettingsError
+from ..film import SplatFilm
+from ..kernels import rng, vcm_mis
+from ..kernels.device_scene import MISS, UNBOUNDED_DEPTH
+from ..kernels.fields import FieldGroup
+from ..kernels.hashgrid import HashGrid
+from ..kernels.photon import MAX_PHOTON_SEGMENTS, trace_photon
+from ..kernels.sampling import onb, to_local, to_world, vec3
+from ..kernels.vcm_mis import MisConstants, PathVertex
+from .base import Method
+from .sppm import NORMAL_COS_MIN, _HashSource
+
+# name -> (connections incl. next-event estimation, merging, light tracing)
+TECHNIQUES = {"vcm": (True, True, True), "bpt": (True, False, True), "bpm": (False, True, False),
+              "lt": (False, False, True)}
+DEFAULT_RADIUS_PIXELS = 2.0      # r_1: pixel footprints at the median distance of the first hits
+INITIAL_VERTICES_PER_PATH = 4    # light-vertex storage per light subpath; grows when exceeded
+PI = math.pi
+
+
+@ti.data_oriented
+class LightVertices:
+    """The iteration's light-subpath vertices: appended by the light pass in any order, then
+    ordered by (path, index along the path) through `order`, so that a camera subpath finds
+    its paired light subpath's vertices in a fixed order whatever the thread scheduling."""
+
+    def __init__(self, capacity: int, n_paths: int):
+        self.capacity = capacity
+        f = FieldGroup(f"vcm-light-vertices-{capacity}")
+        (self.p, self.ng, self.n, self.wo, self.beta, self.dvcm, self.dvc, self.dvm, self.length, self.bsdf,
+         self.path, self.index) = f.interleaved(capacity, [
+            (3, ti.f32, None), (3, ti.f32, None), (3, ti.f32, None), (3, ti.f32, None), (3, ti.f32, None),
+            (None, ti.f32, None), (None, ti.f32, None), (None, ti.f32, None), (None, ti.i32, None),
+            (None, ti.i32, None), (None, ti.i32, None), (None, ti.i32, None)])
+        self.radius = f.scalar(ti.f32, capacity)
+        self.valid = f.scalar(ti.i32, capacity)
+        self.order = f.scalar(ti.i32, capacity)
+        self.path_count = f.scalar(ti.i32, n_paths)
+        self.path_start = f.scalar(ti.i32, n_paths)
+        self.count = f.scalar(ti.i32)
+        f.finalize()
+        self.fields = f
+
+    def release(self):
+        self.fields.release()
+
+    @ti.func
+    def append(self, path: ti.i32, v):
+        slot = ti.atomic_add(self.count[None], 1)
+        index = ti.atomic_add(self.path_count[path], 1)     # one thread per path: 0, 1, 2, ...
+        if slot < self.capacity:
+            self.p[slot] = v.p
+            self.ng[slot] = v.ng
+            self.n[slot] = v.n
+            self.wo[slot] = v.wo
+            self.beta[slot] = v.beta
+            self.dvcm[slot] = v.dvcm
+            self.dvc[slot] = v.dvc
+            self.dvm[slot] = v.dvm
+            self.length[slot] = v.length
+            self.bsdf[slot] = v.bsdf
+            self.path[slot] = path
+            self.index[slot] = index
+
+    @ti.func
+    def vertex(self, slot: ti.i32):
+        return PathVertex(p=self.p[slot], ng=self.ng[slot], n=self.n[slot], wo=self.wo[slot], beta=self.beta[slot],
+                          length=self.length[slot], bsdf=self.bsdf[slot], dvcm=self.dvcm[slot], dvc=self.dvc[slot],
+                          dvm=self.dvm[slot])
+
+    @ti.kernel
+    def clear(self, n_paths: ti.i32):
+        self.count[None] = 0
+        for i in range(n_paths):
+            self.path_count[i] = 0
+
+    @ti.kernel
+    def _starts(self, n_paths: ti.i32):
+        ti.loop_config(serialize=True)
+        for i in range(n_paths):
+            if i == 0:
+                self.path_start[0] = 0
+            else:
+                self.path_start[i] = self.path_start[i - 1] + self.path_count[i - 1]
+
+    @ti.kernel
+    def _order(self, radius: ti.f32):
+        n = self.count[None]
+        for slot in range(self.capacity):
+            self.valid[slot] = 0
+            if slot < n:
+                self.order[self.path_start[self.path[slot]] + self.index[slot]] = slot
+                self.valid[slot] = 1
+                self.radius[slot] = radius
+
+    def finish(self, n_paths: int, radius: float):
+        """After the light pass: path order and the grid's per-vertex radius and validity."""
+        self._starts(n_paths)
+        self._order(radius)
+
+
+@ti.data_oriented
+class Vcm(Method):
+    name = "vcm"
+    work_unit = "paths"
+    default_iterations = 64
+    OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
+               "techniques": "vcm", "light_vertex_capacity": None}
+    # What trace_photon hands this visitor: every non-delta vertex, with the MIS partial sums.
+    visits_from_segment = 1
+    with_mis = True
+
+    def __init__(self, dscene, settings):
+        super().__init__(dscene, settings)
+        opts = self.options
+        w, h = dscene.width, dscene.height
+        self.n_pixels = w * h
+        self.n_light = int(self.n_pixels if opts["light_paths"] is None else opts["light_paths"])
+        if not 1 <= self.n_light <= 1 << 26:
+            raise SettingsError(f"--light-paths must be between 1 and 2^26, got {self.n_light}")
+        self.alpha = float(opts["alpha"])
+        if not 0.0 < self.alpha <= 1.0:
+            raise SettingsError(f"--alpha must be in (0, 1] for vcm (1 keeps the radius fixed), got {self.alpha}")
+        if opts["radius"] is not None and not (0 < opts["radius"] < math.inf):
+            raise SettingsError(f"--radius must be a positive length, got {opts['radius']}")
+        if opts["techniques"] not in TECHNIQUES:
+            raise SettingsError(f"unknown --techniques '{opts['techniques']}' (choose from {', '.join(TECHNIQUES)})")
+        self.techniques = opts["techniques"]
+        self.use_vc, self.use_vm, self.use_lt = TECHNIQUES[self.techniques]
+        self.lt_only = self.techniques == "lt"
+        self.stores_vertices = self.use_vc or self.use_vm
+        depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
+        self.max_depth = UNBOUNDED_DEPTH if depth == -1 else depth
+        self.max_light_segments = min(self.max_depth - 1, MAX_PHOTON_SEGMENTS)
+        self.pixel_angle = 2.0 * dscene.tan_y / h
+        self.r1 = None if opts["radius"] is None else float(opts["radius"])
+        self.radius = 0.0
+
+        f = FieldGroup("vcm")
+        self.consts = f.vector(4, ti.f32, ())        # MisConstants of this iteration, then r^2
+        self.first_hit = f.scalar(ti.f32, self.n_pixels)
+        self.counters = f.scalar(ti.i64, 2)          # 0: light subpaths that left a vertex, 1: vertices dropped
+        f.finalize()
+        self.fields = f
+        radiance = dscene.scene.emitter_radiance
+        self.film = SplatFilm(w, h, float(np.max(radiance)) if len(radiance) else 1.0)
+        capacity = opts["light_vertex_capacity"] or self.n_light * min(self.max_light_segments,
+                                                                      INITIAL_VERTICES_PER_PATH)
+        self.store = self.grid = None
+        if self.stores_vertices:
+            self._allocate_store(int(max(capacity, 1)))
+        self.vertices_last = 0
+        self.store_grown = 0
+
+    def _allocate_store(self, capacity: int):
+        if self.store is not None:
+            self.store.release()
+        if self.grid is not None:
+            self.grid.release()
+        self.store = LightVertices(capacity, self.n_light)
+        self.grid = HashGrid(capacity) if self.use_vm else None
+
+    def release(self):
+        for obj in (self.store, self.grid, self.film, self.fields):
+            if obj is not None:
+                obj.release()
+
+    def _reset(self):
+        self.film.reset()
+        self.counters.fill(0)
+
+    # -- the iteration -----------------------------------------------------------------
+    def _radius_at(self, iteration: int) -> float:
+        """r_i = r_1 i^((alpha-1)/2), i counted from 1 (Knaus & Zwicker 2011; VCM sec. 5)."""
+        if self.r1 is None:
+            self._first_hits()
+            t = self.first_hit.to_numpy()
+            t = t[np.isfinite(t) & (t > 0)]
+            extent = self.dscene.extent
+            median = float(np.median(t)) if len(t) else extent
+            self.r1 = max(DEFAULT_RADIUS_PIXELS * self.pixel_angle * median, 1e-7 * extent)
+            if self.options["radius_pixels"] != DEFAULT_RADIUS_PIXELS:
+                self.r1 *= self.options["radius_pixels"] / DEFAULT_RADIUS_PIXELS
+        return self.r1 * (iteration + 1) ** ((self.alpha - 1.0) / 2.0)
+
+    def _iterate(self):
+        it = self.iterations
+        self.radius = self._radius_at(it)
+        eta = PI * self.radius ** 2 * self.n_light
+        self.consts[None] = [eta if self.use_vm else 0.0, 1.0 / eta if self.use_vc else 0.0, float(self.n_light),
+                             self.radius ** 2]
+        while True:
+            if self.store is not None:
+                self.store.clear(self.n_light)
+                self._light_pass(self.store, self.seed_u32, it, self.n_light, self.max_light_segments)
+            else:
+                self._light_pass(self.fields, self.seed_u32, it, self.n_light, self.max_light_segments)
+            if self.store is None:
+                break
+            n = int(self.store.count[None])
+            if n <= self.store.capacity:
+                break
+            # Too many vertices to store: grow (recompiles the passes once) and redo the pass,
+            # which the counter-based random numbers make the same pass.
+            self.film.clear_frame()
+            self._allocate_store(int(n * 1.25) + 1024)
+            self.store_grown += 1
+        if self.store is not None:
+            self.vertices_last = int(self.store.count[None])
+            self.store.finish(self.n_light, self.radius)
+            if self.grid is not None:
+                self.grid.build(self.store.p, self.store.radius, self.store.valid)
+        self._camera_pass(self.store if self.store is not None else self.fields, self.grid if self.grid is not None
+                          else self.fields, self.seed_u32, it, self.max_depth, 1.0 / (PI * self.radius ** 2 * self.n_light))
+        self.film.flush()
+        self.work_done += self.n_light + self.n_pixels
+
+    @ti.kernel
+    def _first_hits(self):
+        sc = self.dscene
+        for y, x in ti.ndrange(sc.height, sc.width):
+            o, d = sc.camera_ray(x, y, 0.5, 0.5)
+            hit = sc.trace(o, d, ti.math.inf, False)
+            self.first_hit[y * sc.width + x] = hit.t
+
+    @ti.func
+    def mis_constants(self):
+        c = self.consts[None]
+        return MisConstants(vm_weight=c[0], vc_weight=c[1], n_light=c[2])
+
+    # -- light side ----------------------------------------------------------------------
+    @ti.kernel
+    def _light_pass(self, store: ti.template(), seed: ti.u32, iteration: ti.u32, n_light: ti.i32,
+                    max_segments: ti.i32):
+        for p in range(n_light):
+            key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
+            used, _ = trace_photon(self.dscene, _HashSource, key, self, p, max_segments)
+            if used:
+                ti.atomic_add(self.counters[0], 1)
+
+    @ti.func
+    def visit_vertex(self, path: ti.i32, v) -> ti.i32:
+        """A non-delta light vertex: store it for connections and merging, connect it to the camera."""
+        if ti.static(self.stores_vertices):
+            self.store.append(path, v)
+        if ti.static(self.use_lt):
+            if v.length + 1 <= ti.static(self.max_depth):
+                self._connect_to_camera(v)
+        return 1
+
+    @ti.func
+    def _connect_to_camera(self, v):
+        """Light tracing (t = 1): the light vertex seen by the camera, splatted to its pixel."""
+        sc = self.dscene
+        ok, x, y = sc.camera_raster(v.p)
+        if ok:
+            to_cam = sc.cam_origin - v.p
+            dist2 = to_cam.dot(to_cam)
+            w = to_cam / ti.sqrt(dist2)
+            t1, t2 = onb(v.n)
+            w_l = to_local(w, t1, t2, v.n)
+            e = sc.bsdf_evaluate(v.bsdf, to_local(v.wo, t1, t2, v.n), w_l)
+            if e.f.max() > 0.0:
+                c = self.mis_constants()
+                camera_pdf_a = vcm_mis.pdf_w_to_a(sc.camera_pdf_w(-w), dist2, w_l.z)
+                weight = 1.0
+                if ti.static(not self.lt_only):
+                    q = sc.bsdf_continuation(v.bsdf)
+                    weight = vcm_mis.light_trace_weight(v, camera_pdf_a, e.pdf_rev_w * q, c)
+                contrib = v.beta * e.f * (weight * camera_pdf_a / c.n_light)
+                if contrib.max() > 0.0 and sc.visible(v.p, v.ng, sc.cam_origin, w):
+                    px = ti.min(ti.cast(x, ti.i32), sc.width - 1)
+                    py = ti.min(ti.cast(y, ti.i32), sc.height - 1)
+                    self.film.splat(py, px, contrib)
+
+    # -- camera side ---------------------------------------------------------------------
+    @ti.kernel
+    def _camera_pass(self, store: ti.template(), grid: ti.template(), seed: ti.u32, iteration: ti.u32,
+                     max_depth: ti.i32, vm_normalization: ti.f32):
+        sc = self.dscene
+        for y, x in ti.ndrange(sc.height, sc.width):
+            pixel = y * sc.width + x
+            state = rng.seed(seed, ti.u32(pixel), iteration * ti.u32(2))
+            o, d = sc.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
+            c = self.mis_constants()
+            m = vcm_mis.camera_start(sc.camera_pdf_w(d), c)
+            beta = vec3(1.0)
+            length = 0
+            specular = 1                 # only delta bounces so far
+            prev_p = o
+            L = vec3(0.0)
+            merged = ti.Vector([0, 0, 0], ti.i64)
+            while True:
+                hit = sc.trace(o, d, ti.math.inf, False)
+                if hit.kind == MISS:
+                    break
+                length += 1
+                s = sc.surface(o, d, hit)
+                wo = -d
+                vcm_mis.after_hit(m, (s.p - prev_p).norm_sqr(), s.ns.dot(wo))
+                eh = sc.emitter_hit(s, wo)
+                if eh.radiance.max() > 0.0:
+                    L += beta * eh.radiance * self._emitter_hit_weight(m, eh, length, specular)
+                b, n = sc.side_bsdf(s.material, s.ns, wo)
+                if ti.static(self.lt_only):
+                    break                # light tracing renders the rest
+                if b < 0 or length >= max_depth:
+                    break
+                t1, t2 = onb(n)
+                wo_l = to_local(wo, t1, t2, n)
+                q = sc.bsdf_continuation(b)
+                if not sc.bsdf_is_delta(b):
+                    cv = PathVertex(p=s.p, ng=s.ng, n=n, wo=wo, beta=beta, length=length, bsdf=b, dvcm=m.dvcm,
+                                    dvc=m.dvc, dvm=m.dvm)
+                    if ti.static(self.use_vc):
+                        if length + 1 <= max_depth:
+                            L += beta * self._next_event(cv, wo_l, t1, t2, q, state, c)
+                        L += beta * self._connect_to_light_path(store, pixel, cv, wo_l, t1, t2, q, c, max_depth)
+                    if ti.static(self.use_vm):
+                        merged += self._merge(store, grid, cv, wo_l, t1, t2, q, c, max_depth, vm_normalization)
+                bs = sc.bsdf_sample(b, wo_l, rng.next_float(state), rng.next_float(state), rng.next_float(state), True)
+                if not bs.ok:
+                    break
+                if rng.next_float(state) >= q:
+                    break
+                beta *= bs.weight / q
+                vcm_mis.after_scatter(m, bs.delta, bs.wi.z, bs.pdf_fwd_w * q, bs.pdf_rev_w * q, c)
+                specular &= bs.delta
+                d = to_world(bs.wi, t1, t2, n)
+                o = sc.spawn(s.p, s.ng, d)
+                prev_p = s.p
+            self.film.add_fixed(y, x, self.film.fixed(L) + merged)
+
+    @ti.func
+    def _emitter_hit_weight(self, m, eh, length: ti.i32, specular: ti.i32) -> ti.f32:
+        w = 1.0                          # emitters seen directly: no other technique makes these
+        if length > 1:
+            if ti.static(self.use_vc):
+                w = vcm_mis.emitter_hit_weight(m, eh.direct_pdf_a, eh.emission_pdf_w, True)
+            elif ti.static(self.use_vm):
+                w = 1.0 if specular else 0.0     # bpm: merging makes every path with a non-delta vertex
+            else:
+                w = 0.0                  # lt
+        return w
+
+    @ti.func
+    def _next_event(self, cv, wo_l, t1, t2, q: ti.f32, state: ti.template(), c):
+        """Next-event estimation (s = 1) at camera vertex cv."""
+        sc = self.dscene
+        contrib = vec3(0.0)
+        il = sc.illuminate(cv.p, rng.next_float(state), rng.next_float(state), rng.next_float(state))
+        if il.radiance.max() > 0.0:
+            wi_l = to_local(il.wi, t1, t2, cv.n)
+            e = sc.bsdf_evaluate(cv.bsdf, wo_l, wi_l)
+            if e.f.max() > 0.0 and sc.visible(cv.p, cv.ng, il.p, il.n):
+                w = vcm_mis.next_event_weight(cv, il.direct_pdf_w, il.emission_pdf_w, il.cos_light, wi_l.z,
+                                              e.pdf_fwd_w * q, e.pdf_rev_w * q, c, True)
+                contrib = e.f * il.radiance * (w * ti.abs(wi_l.z) / il.direct_pdf_w)
+        return contrib
+
+    @ti.func
+    def _connect_to_light_path(self, store: ti.template(), pixel: ti.i32, cv, wo_l, t1, t2, q: ti.f32, c,
+                               max_depth: ti.i32):
+        """Connections (s, t >= 2) to every vertex of the light subpath paired with this pixel
+        (the one with the pixel's index, as in SmallVCM: N_L = pixels by default)."""
+        sc = self.dscene
+        total = vec3(0.0)
+        path = pixel % ti.static(self.n_light)
+        first = store.path_start[path]
+        for k in range(store.path_count[path]):
+            lv = store.vertex(store.order[first + k])
+            if lv.length + 1 + cv.length <= max_depth:
+                to_l = lv.p - cv.p
+                dist2 = to_l.dot(to_l)
+                if dist2 > 0.0:
+                    w = to_l / ti.sqrt(dist2)
+                    wi_l = to_local(w, t1, t2, cv.n)
+                    ec = sc.bsdf_evaluate(cv.bsdf, wo_l, wi_l)
+                    l1, l2 = onb(lv.n)
+                    wl_l = to_local(-w, l1, l2, lv.n)
+                    el = sc.bsdf_evaluate(lv.bsdf, to_local(lv.wo, l1, l2, lv.n), wl_l)
+                    if ec.f.max() > 0.0 and el.f.max() > 0.0:
+                        ql = sc.bsdf_continuation(lv.bsdf)
+                        camera_fwd_a = vcm_mis.pdf_w_to_a(ec.pdf_fwd_w * q, dist2, wl_l.z)
+                        light_fwd_a = vcm_mis.pdf_w_to_a(el.pdf_fwd_w * ql, dist2, wi_l.z)
+                        weight = vcm_mis.connection_weight(lv, cv, camera_fwd_a, ec.pdf_rev_w * q, light_fwd_a,
+                                                           el.pdf_rev_w * ql, c)
+                        g = ti.abs(wi_l.z * wl_l.z) / dist2
+                        contrib = ec.f * el.f * lv.beta * (weight * g)
+                        if contrib.max() > 0.0 and sc.visible(cv.p, cv.ng, lv.p, lv.ng):
+                            total += contrib
+        return total
+
+    @ti.func
+    def _merge(self, store: ti.template(), grid: ti.template(), cv, wo_l, t1, t2, q: ti.f32, c, max_depth: ti.i32,
+               vm_normalization: ti.f32):
+        """Merging (photon mapping at every non-delta camera vertex) with the light vertices
+        within the radius, in fixed point: the sum does not depend on the grid's order."""
+        sc = self.dscene
+        total = ti.Vector([0, 0, 0], ti.i64)
+        r2 = self.radius_sq()
+        first, end = grid.candidates(cv.p)
+        for e in range(first, end):
+            slot = grid.entries[e]
+            lp = store.p[slot]
+            if (lp - cv.p).norm_sqr() <= r2 and store.length[slot] + cv.length <= max_depth:
+                ln = store.n[slot]
+                lwo = store.wo[slot]
+                if lwo.dot(cv.n) > 0.0 and ln.dot(cv.n) >= NORMAL_COS_MIN:
+                    lv = store.vertex(slot)
+                    ev = sc.bsdf_evaluate(cv.bsdf, wo_l, to_local(lwo, t1, t2, cv.n))
+                    if ev.f.max() > 0.0:
+                        ql = sc.bsdf_continuation(lv.bsdf)
+                        weight = vcm_mis.merge_weight(lv, cv, ev.pdf_fwd_w * q, ev.pdf_rev_w * ql, c)
+                        total += self.film.fixed(cv.beta * ev.f * lv.beta * (weight * vm_normalization))
+        return total
+
+    @ti.func
+    def radius_sq(self) -> ti.f32:
+        return self.consts[None][3]
+
+    # -- results ----------------------------------------------------------------------
+    def image(self):
+        return self.film.mean()
+
+    def standard_error(self):
+        return self.film.standard_error()
+
+    def progress_fields(self) -> str:
+        return f"radius {self.radius:.3g}" if self.use_vm else ""
+
+    def method_stats(self):
+        c = self.counters.to_numpy()
+        return {"techniques": self.techniques, "light_paths_per_iteration": self.n_light,
+                "radius": self.radius if self.use_vm else None, "initial_radius": self.r1, "alpha": self.alpha,
+                "fraction_of_light_paths_with_vertices": float(c[0]) / max(self.iterations * self.n_light, 1),
+                "light_vertices_last_iteration": self.vertices_last,
+                "light_vertex_capacity": self.store.capacity if self.store is not None else 0,
+                "light_vertex_store_grown": self.store_grown,
+                "nonfinite_samples_dropped": self.film.dropped()}
