@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from photonmc import runtime
+from photonmc import load_scene, runtime
 
 REPO = Path(__file__).resolve().parent.parent
 SCENES = REPO / "scenes"
@@ -54,3 +54,17 @@ def write_scene(tmp_path):
         path.write_text(f'<scene version="3.0.0">\n{textwrap.dedent(body)}\n</scene>\n')
         return path
     return write
+
+
+def scaled_box_scene(write_scene, scale=1.0, radiance_scale=1.0):
+    """A small closed box with a glass sphere (a caustic) and a ceiling light."""
+    s = scale
+    return load_scene(write_scene(camera_xml(res=12, fov=70, origin=f"0,0,{2.5 * s}", target="0,0,0") + f"""
+        <shape type="cube"><boolean name="flip_normals" value="true"/>
+            <transform name="to_world"><scale x="{s}" y="{s}" z="{3 * s}"/></transform>
+            <bsdf type="diffuse"><rgb name="reflectance" value="0.6,0.5,0.4"/></bsdf></shape>
+        <shape type="sphere"><float name="radius" value="{0.4 * s}"/><point name="center" x="0" y="{-0.5 * s}" z="0"/>
+            <bsdf type="dielectric"/></shape>
+        <shape type="rectangle"><transform name="to_world"><scale value="{0.3 * s}"/><rotate x="1" angle="90"/>
+            <translate y="{0.99 * s}"/></transform>
+            <emitter type="area"><rgb name="radiance" value="{5 * radiance_scale}"/></emitter></shape>"""))

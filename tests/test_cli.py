@@ -77,6 +77,12 @@ BAD = {
     "negative seed": (["render", *SMALL, "--seed", "-1"], "--seed must be"),
     "zero max depth": (["render", *SMALL, "--max-depth", "0"], "--max-depth must be"),
     "zero threads": (["render", *SMALL, "--threads", "0"], "--threads must be at least 1"),
+    "vcm zero radius": (["render", *SMALL, "--method", "vcm", "--radius", "0"], "--radius must be a positive"),
+    "vcm bad alpha": (["render", *SMALL, "--method", "vcm", "--alpha", "1.5"], "--alpha must be in (0, 1]"),
+    "vcm no light paths": (["render", *SMALL, "--method", "vcm", "--light-paths", "0"], "--light-paths must be"),
+    "vcm unknown technique": (["render", *SMALL, "--method", "vcm", "--techniques", "pm"], "unknown --techniques"),
+    "light paths for sppm": (["render", *SMALL, "--method", "sppm", "--light-paths", "9"],
+                             "does not take --light-paths"),
 }
 
 
@@ -97,9 +103,11 @@ def test_malformed_scene_gives_one_line_error(tmp_path):
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "malformed XML" in r.stderr
 
 
-@pytest.mark.parametrize("method", ["pt", "spatial-tf"])
+@pytest.mark.parametrize("method", ["pt", "spatial-tf", "vcm"])
 def test_same_seed_same_image_for_any_thread_count(tmp_path, method):
-    """spatial-tf: its ladders run in parallel (kernels/mcmc.py), two per thread with 2."""
+    """spatial-tf: its ladders run in parallel (kernels/mcmc.py), two per thread with 2.
+    vcm: light vertices are appended in thread order, then put in path order; light tracing
+    and merging add in fixed point (film.SplatFilm)."""
     images = []
     for threads in ("1", "2"):
         out = tmp_path / f"t{threads}.exr"

@@ -11,7 +11,7 @@ from photonmc.kernels.hashgrid import HashGrid
 from photonmc.metrics import downsample, luminance, mean_luminance
 from photonmc.loop import Budget, prepare, run
 
-from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml
+from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml, scaled_box_scene
 from .test_pt import furnace_expectation, furnace_xml
 
 
@@ -127,38 +127,24 @@ def test_error_falls_and_converges_to_mitsuba(name):
     assert int(read_metadata(ref_path)["spp"]) >= 16384
 
 
-def _scaled_scene(write_scene, scale=1.0, radiance_scale=1.0):
-    """A small closed box with a glass sphere (a caustic) and a ceiling light."""
-    s = scale
-    return load_scene(write_scene(camera_xml(res=12, fov=70, origin=f"0,0,{2.5 * s}", target="0,0,0") + f"""
-        <shape type="cube"><boolean name="flip_normals" value="true"/>
-            <transform name="to_world"><scale x="{s}" y="{s}" z="{3 * s}"/></transform>
-            <bsdf type="diffuse"><rgb name="reflectance" value="0.6,0.5,0.4"/></bsdf></shape>
-        <shape type="sphere"><float name="radius" value="{0.4 * s}"/><point name="center" x="0" y="{-0.5 * s}" z="0"/>
-            <bsdf type="dielectric"/></shape>
-        <shape type="rectangle"><transform name="to_world"><scale value="{0.3 * s}"/><rotate x="1" angle="90"/>
-            <translate y="{0.99 * s}"/></transform>
-            <emitter type="area"><rgb name="radiance" value="{5 * radiance_scale}"/></emitter></shape>"""))
-
-
 def test_scene_scale_and_light_power_extremes(write_scene):
     """The same scene scaled by 1e-3 and 1e3 gives the same image (radii, offsets and the
     grid scale with it); light radiance x1e-6 and x1e6 scales the image linearly (the
     fixed-point flux is relative to the emitted power)."""
-    base = render(_scaled_scene(write_scene), 40, seed=5).image
+    base = render(scaled_box_scene(write_scene), 40, seed=5).image
     assert base.mean() > 0
     for scale in (1e-3, 1e3):
-        img = render(_scaled_scene(write_scene, scale=scale), 40, seed=5).image
+        img = render(scaled_box_scene(write_scene, scale=scale), 40, seed=5).image
         assert abs(img.mean() / base.mean() - 1) < 0.03
         assert np.abs(downsample(luminance(img), 4) - downsample(luminance(base), 4)).max() < 0.25 * luminance(base).mean()
     for k in (1e-6, 1e6):
-        img = render(_scaled_scene(write_scene, radiance_scale=k), 40, seed=5).image
+        img = render(scaled_box_scene(write_scene, radiance_scale=k), 40, seed=5).image
         np.testing.assert_allclose(img / k, base, rtol=1e-3, atol=1e-6 * base.max())
 
 
 def test_many_iterations_on_a_tiny_image(write_scene):
     """10^4 iterations: radii keep shrinking without underflow, no NaN reaches the image."""
-    scene = _scaled_scene(write_scene)
+    scene = scaled_box_scene(write_scene)
     p = prepare(scene, method="sppm", seed=1, options={"photons": 64})
     r = run(p, Budget(iterations=10_000), quiet=True)
     radius = p.method.R.to_numpy()
@@ -169,7 +155,7 @@ def test_many_iterations_on_a_tiny_image(write_scene):
 
 
 def test_one_photon_per_iteration_and_iterations_without_deposits(write_scene):
-    scene = _scaled_scene(write_scene)
+    scene = scaled_box_scene(write_scene)
     r = render(scene, 50, photons=1)
     assert np.isfinite(r.image).all()
     # Most single-photon iterations deposit nothing into a 12x12 image's few MPs.

@@ -1,0 +1,201 @@
+"""Vertex connection and merging: the camera for light tracing, each technique variant
+against analytic answers and Mitsuba, the extremes, determinism and bad options.
+
+The MIS recursion itself is tested in test_vcm_mis.py."""
+import math
+
+import numpy as np
+import pytest
+import taichi as ti
+
+from photonmc import load_scene
+from photonmc.errors import SettingsError
+from photonmc.imageio import read_image
+from photonmc.kernels.device_scene import DeviceScene
+from photonmc.loop import Budget, prepare, run
+from photonmc.metrics import luminance, mean_luminance
+
+from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml, half_resolution, scaled_box_scene
+from .test_pt import furnace_expectation, furnace_xml
+
+VARIANTS = ("vcm", "bpt", "bpm", "lt")
+
+
+def render(scene, iterations, seed=0, max_depth=None, **options):
+    p = prepare(scene, method="vcm", seed=seed, max_depth=max_depth, options=options)
+    r = run(p, Budget(iterations=iterations), quiet=True)
+    p.release()
+    return r
+
+
+@ti.kernel
+def camera_round_trip(sc: ti.template(), px: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                      py: ti.types.ndarray(dtype=ti.i32, ndim=1), u: ti.types.ndarray(dtype=ti.math.vec2, ndim=1),
+                      raster: ti.types.ndarray(dtype=ti.math.vec3, ndim=1), pdf: ti.types.ndarray(dtype=ti.f32, ndim=1),
+                      corners: ti.types.ndarray(dtype=ti.math.vec3, ndim=2)):
+    for i in range(px.shape[0]):
+        o, d = sc.camera_ray(px[i], py[i], u[i][0], u[i][1])
+        ok, x, y = sc.camera_raster(o + 3.7 * d)
+        raster[i] = ti.math.vec3(ok, x, y)
+        _, dm = sc.camera_ray(px[i], py[i], 0.5, 0.5)
+        pdf[i] = sc.camera_pdf_w(dm)
+        for k in ti.static(range(4)):
+            _, dc = sc.camera_ray(px[i], py[i], float(k % 2), float(k // 2))
+            corners[i, k] = dc
+
+
+def _solid_angle_of_triangle(a, b, c):
+    """Van Oosterom & Strackee: solid angle of the spherical triangle of unit vectors a, b, c."""
+    num = abs(np.einsum("ij,ij->i", a, np.cross(b, c)))
+    den = 1 + np.einsum("ij,ij->i", a, b) + np.einsum("ij,ij->i", b, c) + np.einsum("ij,ij->i", c, a)
+    return 2 * np.arctan2(num, den)
+
+
+@pytest.mark.parametrize("name,params", [("mitsuba-style", {"resx": 40, "resy": 30}), ("cornell-box", {"res": 16})])
+def test_camera_raster_inverts_camera_ray_and_its_pdf_is_one_per_pixel(name, params):
+    """camera_raster(camera_ray(x + u)) = x + u, and camera_pdf_w is the density of one sample
+    per pixel: at the pixel's centre, 1 / (the pixel's solid angle, from its corner rays), up
+    to the curvature of the density across one pixel (second order in its angular size)."""
+    dscene = DeviceScene(load_scene(SCENES / name / "scene.xml", params))
+    w, h = dscene.width, dscene.height
+    rng = np.random.default_rng(3)
+    n = 500
+    px = rng.integers(0, w, n).astype(np.int32)
+    py = rng.integers(0, h, n).astype(np.int32)
+    u = rng.random((n, 2)).astype(np.float32)
+    raster = np.zeros((n, 3), np.float32)
+    pdf = np.zeros(n, np.float32)
+    corners = np.zeros((n, 4, 3), np.float32)
+    camera_round_trip(dscene, px, py, u, raster, pdf, corners)
+    assert raster[:, 0].all()
+    np.testing.assert_allclose(raster[:, 1], px + u[:, 0], atol=2e-3)
+    np.testing.assert_allclose(raster[:, 2], py + u[:, 1], atol=2e-3)
+    c = corners.astype(np.float64)
+    omega = _solid_angle_of_triangle(c[:, 0], c[:, 1], c[:, 3]) + _solid_angle_of_triangle(c[:, 0], c[:, 3], c[:, 2])
+    np.testing.assert_allclose(pdf * omega, 1.0, rtol=2e-3)
+    dscene.release()
+
+
+@pytest.mark.parametrize("techniques", VARIANTS)
+@pytest.mark.parametrize("depth", [3, -1])
+def test_sphere_furnace_analytic(write_scene, techniques, depth):
+    """Inside an emitting diffuse sphere L = Le sum_{k<D} albedo^k: every variant, light
+    tracing alone included, must reach it (merging has no blur bias where the density is
+    uniform)."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    r = render(scene, 64, seed=2, max_depth=depth, techniques=techniques)
+    lum = luminance(r.image)
+    expected = furnace_expectation(depth)
+    spread = lum.std()
+    assert abs(lum.mean() - expected) < 5 * spread / math.sqrt(lum.size) + 2e-3 * expected, (techniques, lum.mean())
+    assert np.abs(lum - expected).max() < 6 * spread + 1e-6
+    assert r.stats["nonfinite_samples_dropped"] == 0
+
+
+def test_growing_the_vertex_store_changes_nothing(write_scene):
+    """A store too small for the iteration's light vertices grows and the pass is redone:
+    the image is bit-identical to one rendered with room to spare."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    small = render(scene, 3, seed=4, max_depth=-1, light_vertex_capacity=64)
+    large = render(scene, 3, seed=4, max_depth=-1, light_vertex_capacity=1 << 16)
+    assert small.stats["light_vertex_store_grown"] >= 1 and large.stats["light_vertex_store_grown"] == 0
+    assert np.array_equal(small.image, large.image)
+
+
+def test_seed_determinism():
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 16})
+    a = render(scene, 3, seed=3).image
+    b = render(scene, 3, seed=3).image
+    c = render(scene, 3, seed=4).image
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+def test_scene_scale_and_light_power_extremes(write_scene):
+    """Scaled by 1e-3 and 1e3 the box gives the same image (radius, offsets and grid scale
+    with it); radiance x1e-6 and x1e6 scales the image linearly (the fixed-point film is
+    relative to the brightest emitter)."""
+    base = render(scaled_box_scene(write_scene), 40, seed=5).image
+    assert base.mean() > 0
+    for scale in (1e-3, 1e3):
+        img = render(scaled_box_scene(write_scene, scale=scale), 40, seed=5).image
+        assert abs(img.mean() / base.mean() - 1) < 0.03, scale
+    for k in (1e-6, 1e6):
+        img = render(scaled_box_scene(write_scene, radiance_scale=k), 40, seed=5).image
+        np.testing.assert_allclose(img / k, base, rtol=1e-3, atol=1e-6 * base.max())
+
+
+def test_one_light_path_per_iteration(write_scene):
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    r = render(scene, 200, seed=1, max_depth=3, light_paths=1)
+    lum = luminance(r.image)
+    expected = furnace_expectation(3)
+    assert np.isfinite(r.image).all() and r.stats["light_paths_per_iteration"] == 1
+    assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected
+
+
+@pytest.mark.parametrize("options,message", [
+    ({"radius": 0.0}, "--radius"), ({"radius": -1.0}, "--radius"), ({"alpha": 0.0}, "--alpha"),
+    ({"alpha": 1.5}, "--alpha"), ({"light_paths": 0}, "--light-paths"), ({"techniques": "pm"}, "--techniques"),
+])
+def test_bad_options(options, message):
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})
+    with pytest.raises(SettingsError, match=message):
+        prepare(scene, method="vcm", options=options)
+
+
+def test_alpha_one_keeps_the_radius():
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})
+    r = render(scene, 5, alpha=1.0, radius=0.05)
+    assert r.stats["radius"] == pytest.approx(0.05)
+
+
+@pytest.mark.convergence
+@pytest.mark.parametrize("name,ref_file,params", SCENE_REFERENCES, ids=[r[0] for r in SCENE_REFERENCES])
+def test_vcm_matches_mitsuba_on_every_bundled_scene(name, ref_file, params):
+    """Mean luminance within 1 % of Mitsuba's reference after 200 iterations at half the
+    reference's resolution (a box-filtered image's mean does not depend on it)."""
+    ref = read_image(REFS / ref_file)
+    scene = load_scene(SCENES / name / "scene.xml", half_resolution(params))
+    r = render(scene, 200, seed=1)
+    bias = mean_luminance(r.image) / mean_luminance(ref) - 1
+    print(f"vcm {name}: mean {100 * bias:+.2f} % against Mitsuba")
+    assert np.isfinite(r.image).all()
+    assert abs(bias) < 0.01
+
+
+@pytest.mark.convergence
+@pytest.mark.parametrize("techniques", ["bpt", "bpm"])
+def test_each_variant_alone_matches_mitsuba_on_the_cornell_box(techniques):
+    ref = read_image(REFS / "cornell-box-64.exr")
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 32})
+    r = render(scene, 200, seed=1, techniques=techniques)
+    bias = mean_luminance(r.image) / mean_luminance(ref) - 1
+    print(f"{techniques} cornell-box: mean {100 * bias:+.2f} % against Mitsuba")
+    assert abs(bias) < 0.01
+
+
+@pytest.mark.convergence
+@pytest.mark.parametrize("techniques", ["vcm", "lt"])
+def test_error_falls_on_the_light_gap(techniques):
+    """The room lit only through a slit (no mirror or glass, so light tracing alone can render
+    it): against the Mitsuba reference RMSE falls with iterations at about the Monte Carlo
+    rate (slope -0.5; merging's variance falls as N^-alpha) and the mean ends within 1 %."""
+    ref = luminance(read_image(REFS / "light-gap-64.exr"))
+    scene = load_scene(SCENES / "light-gap" / "scene.xml", {"res": 64})
+    p = prepare(scene, method="vcm", seed=1, options={"techniques": techniques})
+    checkpoints = [16, 64, 256]
+    errors = []
+
+    def record(m, iteration, elapsed):
+        if iteration in checkpoints:
+            errors.append(float(np.sqrt(np.mean((luminance(m.image()) - ref) ** 2))))
+
+    r = run(p, Budget(iterations=checkpoints[-1]), quiet=True, on_iteration=record)
+    p.release()
+    slope = np.polyfit(np.log(checkpoints), np.log(errors), 1)[0]
+    bias = luminance(r.image).mean() / ref.mean() - 1
+    print(f"{techniques} light-gap RMSE {np.round(errors, 5).tolist()} at {checkpoints}: slope {slope:.3f}, "
+          f"mean {100 * bias:+.2f} %")
+    assert errors[0] > errors[1] > errors[2]
+    assert slope < -0.3
+    assert abs(bias) < 0.01
