@@ -201,3 +201,50 @@ def test_power_heuristic_at_extreme_pdfs():
     w = np.zeros(len(a), np.float32)
     heuristic(a, b, w)
     np.testing.assert_allclose(w, [0.5, 0.9, 0.0, 1.0, 0.0, 0.5, 1.0, 0.5, 0.8], rtol=1e-6, atol=1e-30)
+
+
+@ti.kernel
+def bidirectional_contract(kind: ti.i32, seed: ti.u32, out: ti.types.ndarray(dtype=ti.f32, ndim=2)):
+    """Per sample: sampled forward/reverse pdfs, evaluate(wo, wi)'s pdfs and f, evaluate(wi, wo)'s."""
+    for i in range(out.shape[0]):
+        state = rng.seed(seed, ti.u32(i), ti.u32(1))
+        wo = sampling.cosine_hemisphere(rng.next_float(state), rng.next_float(state))
+        s = bsdf.sample(KINDS, kind, vec3(0.5, 0.6, 0.7), vec3(1.0), 1.5, wo, rng.next_float(state),
+                        rng.next_float(state), rng.next_float(state), False)
+        e = bsdf.evaluate(KINDS, kind, vec3(0.5, 0.6, 0.7), wo, s.wi)
+        r = bsdf.evaluate(KINDS, kind, vec3(0.5, 0.6, 0.7), s.wi, wo)
+        out[i, 0] = s.pdf_fwd_w
+        out[i, 1] = s.pdf_rev_w
+        out[i, 2] = e.pdf_fwd_w
+        out[i, 3] = e.pdf_rev_w
+        out[i, 4] = r.pdf_fwd_w
+        out[i, 5] = r.pdf_rev_w
+        out[i, 6] = e.f[1]
+        out[i, 7] = r.f[1]
+        out[i, 8] = s.delta
+        out[i, 9] = bsdf.continuation(KINDS, kind, vec3(0.5, 0.6, 0.7), vec3(1.0))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_bidirectional_contract(kind):
+    """sample() and evaluate() agree on both pdfs; the reverse pdf is the forward pdf with the
+    directions swapped; f is reciprocal; a delta lobe's pdfs are equal both ways; the
+    continuation probability is the largest albedo component."""
+    out = np.zeros((20_000, 10), np.float32)
+    bidirectional_contract(kind, 5, out)
+    if kind == DIFFUSE:
+        assert not out[:, 8].any()
+        np.testing.assert_allclose(out[:, 0], out[:, 2], rtol=1e-5)
+        np.testing.assert_allclose(out[:, 1], out[:, 3], rtol=1e-5)
+        np.testing.assert_allclose(out[:, 3], out[:, 4], rtol=1e-6)
+        np.testing.assert_allclose(out[:, 2], out[:, 5], rtol=1e-6)
+        np.testing.assert_allclose(out[:, 6], out[:, 7], rtol=1e-6)
+        np.testing.assert_allclose(out[:, 6], 0.6 / math.pi, rtol=1e-6)
+        assert out[:, 9] == pytest.approx(0.7)
+    else:
+        assert out[:, 8].all()
+        np.testing.assert_array_equal(out[:, 0], out[:, 1])
+        assert (out[:, 0] > 0).all() and (out[:, 0] <= 1).all()
+        # A delta lobe has no value for a given pair of directions.
+        assert not out[:, 2:8].any()
+        assert out[:, 9] == pytest.approx(0.7 if kind == CONDUCTOR else 1.0)
