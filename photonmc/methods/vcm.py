@@ -26,7 +26,7 @@ from ..film import SplatFilm
 from ..kernels import rng, vcm_mis
 from ..kernels.device_scene import MISS, UNBOUNDED_DEPTH
 from ..kernels.fields import FieldGroup
-from ..kernels.hashgrid import HashGrid
+from ..kernels.hashgrid import PointGrid
 from ..kernels.photon import MAX_PHOTON_SEGMENTS, trace_photon
 from ..kernels.sampling import onb, to_local, to_world, vec3
 from ..kernels.vcm_mis import MisConstants, PathVertex
@@ -55,7 +55,6 @@ class LightVertices:
             (3, ti.f32, None), (3, ti.f32, None), (3, ti.f32, None), (3, ti.f32, None), (3, ti.f32, None),
             (None, ti.f32, None), (None, ti.f32, None), (None, ti.f32, None), (None, ti.i32, None),
             (None, ti.i32, None), (None, ti.i32, None), (None, ti.i32, None)])
-        self.radius = f.scalar(ti.f32, capacity)
         self.valid = f.scalar(ti.i32, capacity)
         self.order = f.scalar(ti.i32, capacity)
         self.path_count = f.scalar(ti.i32, n_paths)
@@ -107,19 +106,18 @@ class LightVertices:
                 self.path_start[i] = self.path_start[i - 1] + self.path_count[i - 1]
 
     @ti.kernel
-    def _order(self, radius: ti.f32):
+    def _order(self):
         n = self.count[None]
         for slot in range(self.capacity):
             self.valid[slot] = 0
             if slot < n:
                 self.order[self.path_start[self.path[slot]] + self.index[slot]] = slot
                 self.valid[slot] = 1
-                self.radius[slot] = radius
 
-    def finish(self, n_paths: int, radius: float):
-        """After the light pass: path order and the grid's per-vertex radius and validity."""
+    def finish(self, n_paths: int):
+        """After the light pass: path order, and which slots hold a vertex (for the grid)."""
         self._starts(n_paths)
-        self._order(radius)
+        self._order()
 
 
 @ti.data_oriented
@@ -181,7 +179,7 @@ class Vcm(Method):
         if self.grid is not None:
             self.grid.release()
         self.store = LightVertices(capacity, self.n_light)
-        self.grid = HashGrid(capacity) if self.use_vm else None
+        self.grid = PointGrid(capacity) if self.use_vm else None
 
     def release(self):
         for obj in (self.store, self.grid, self.film, self.fields):
@@ -230,9 +228,9 @@ class Vcm(Method):
             self.store_grown += 1
         if self.store is not None:
             self.vertices_last = int(self.store.count[None])
-            self.store.finish(self.n_light, self.radius)
+            self.store.finish(self.n_light)
             if self.grid is not None:
-                self.grid.build(self.store.p, self.store.radius, self.store.valid)
+                self.grid.build(self.store.p, self.radius, self.store.valid)
         self._camera_pass(self.store if self.store is not None else self.fields, self.grid if self.grid is not None
                           else self.fields, self.seed_u32, it, self.max_depth, 1.0 / (PI * self.radius ** 2 * self.n_light))
         self.film.flush()
@@ -422,20 +420,23 @@ class Vcm(Method):
         sc = self.dscene
         total = ti.Vector([0, 0, 0], ti.i64)
         r2 = self.radius_sq()
-        first, end = grid.candidates(cv.p)
-        for e in range(first, end):
-            slot = grid.entries[e]
-            lp = store.p[slot]
-            if (lp - cv.p).norm_sqr() <= r2 and store.length[slot] + cv.length <= max_depth:
-                ln = store.n[slot]
-                lwo = store.wo[slot]
-                if lwo.dot(cv.n) > 0.0 and ln.dot(cv.n) >= NORMAL_COS_MIN:
-                    lv = store.vertex(slot)
-                    ev = sc.bsdf_evaluate(cv.bsdf, wo_l, to_local(lwo, t1, t2, cv.n))
-                    if ev.f.max() > 0.0:
-                        ql = sc.bsdf_continuation(lv.bsdf)
-                        weight = vcm_mis.merge_weight(lv, cv, ev.pdf_fwd_w * q, ev.pdf_rev_w * ql, c)
-                        total += self.film.fixed(cv.beta * ev.f * lv.beta * (weight * vm_normalization))
+        slots, n_slots = grid.slots_near(cv.p)
+        for k in range(n_slots):
+            first, end = grid.slot_range(slots[k])
+            for e in range(first, end):
+                if (grid.entry_pos[e] - cv.p).norm_sqr() <= r2:
+                    slot = grid.entries[e]
+                    if store.length[slot] + cv.length > max_depth:
+                        continue
+                    ln = store.n[slot]
+                    lwo = store.wo[slot]
+                    if lwo.dot(cv.n) > 0.0 and ln.dot(cv.n) >= NORMAL_COS_MIN:
+                        lv = store.vertex(slot)
+                        ev = sc.bsdf_evaluate(cv.bsdf, wo_l, to_local(lwo, t1, t2, cv.n))
+                        if ev.f.max() > 0.0:
+                            ql = sc.bsdf_continuation(lv.bsdf)
+                            weight = vcm_mis.merge_weight(lv, cv, ev.pdf_fwd_w * q, ev.pdf_rev_w * ql, c)
+                            total += self.film.fixed(cv.beta * ev.f * lv.beta * (weight * vm_normalization))
         return total
 
     @ti.func
