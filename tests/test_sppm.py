@@ -11,7 +11,7 @@ from photonmc.kernels.hashgrid import HashGrid
 from photonmc.metrics import downsample, luminance, mean_luminance
 from photonmc.loop import Budget, prepare, run
 
-from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml, scaled_box_scene
+from .conftest import REFS, SCENE_REFERENCES, SCENES, scaled_box_scene
 from .test_pt import furnace_expectation, furnace_xml
 
 

@@ -3,20 +3,23 @@
 Each iteration traces one path per pixel. Emission found by BSDF sampling and by emitter
 sampling is combined with the power heuristic (Veach 1997, eq. 9.13); delta bounces
 (mirror, glass) see emitters with weight 1. Depth follows Mitsuba's `max_depth`: a path
-of k segments contributes iff k <= max_depth. Russian roulette from `rr_depth` on divides
-by the survival probability, so it changes noise, not the expectation.
+of k segments contributes iff k <= max_depth. Russian roulette from RR_DEPTH segments on
+divides by the survival probability, so it changes noise, not the expectation. The path is
+the shared camera walk (kernels/camera_walk.py); this module says what happens at its
+surfaces and vertices.
 """
 
 import taichi as ti
 
 from ..film import Film
 from ..kernels import rng
-from ..kernels.device_scene import MISS, UNBOUNDED_DEPTH, DeviceScene
+from ..kernels.camera_walk import CONTINUE, THROUGHPUT_ROULETTE, camera_walk
+from ..kernels.device_scene import UNBOUNDED_DEPTH, DeviceScene
 from ..kernels.direct import next_event
-from ..kernels.sampling import onb, power_heuristic, to_local, to_world, vec3
+from ..kernels.sampling import power_heuristic, vec3
 from .base import Method, MethodSettings
 
-RR_DEPTH = 5
+Radiance = ti.types.struct(L=vec3)
 
 
 @ti.data_oriented
@@ -55,61 +58,34 @@ class PathTracer(Method):
         for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
             state = rng.seed(seed, ti.u32(y * self.dscene.width + x), iteration)
             o, d = self.dscene.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
-            self.film.add(y, x, self.radiance(o, d, state, max_depth))
+            acc = Radiance(L=vec3(0.0))
+            camera_walk(self.dscene, o, d, state, max_depth, self, acc)
+            self.film.add(y, x, acc.L)
+
+    # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
+    roulette = THROUGHPUT_ROULETTE
 
     @ti.func
-    def radiance(self, o, d, state: ti.template(), max_depth: ti.i32):
-        sc = self.dscene
-        L = vec3(0.0)
-        beta = vec3(1.0)
-        prev_pdf_w = 0.0
-        prev_delta = 1          # the camera "bounce": emitters seen directly get weight 1
-        eta_scale = 1.0         # product of relative IORs crossed, undone for roulette
-        depth = 0               # segments traced so far
-        prev_p = o              # the previous vertex itself, not the offset ray origin
-        while True:
-            hit = sc.trace(o, d, ti.math.inf, False)
-            if hit.kind == MISS:
-                break
-            depth += 1
-            s = sc.surface(o, d, hit)
-            wo = -d
-            le = sc.emitted(s.emitter, s.ns, wo)
-            if le.max() > 0.0:
-                w = 1.0
-                if not prev_delta:
-                    # Distance from the vertex, not from the offset origin: otherwise the
-                    # two MIS weights of a path do not sum to one (a bias of order eps/dist).
-                    cos_l = ti.abs(s.ns.dot(wo))
-                    dist2 = (s.p - prev_p).norm_sqr()
-                    pdf_light_w = s.light_pdf_a * dist2 / ti.max(cos_l, 1e-12)
-                    w = power_heuristic(prev_pdf_w, pdf_light_w)
-                L += beta * le * w
-            if depth >= max_depth:
-                break
-            b, n = sc.side_bsdf(s.material, s.ns, wo)
-            if b < 0:
-                break           # back side of a one-sided BSDF: black
-            t1, t2 = onb(n)
-            wo_l = to_local(wo, t1, t2, n)
-            if not sc.bsdf_is_delta(b):
-                L += beta * next_event(sc, s.p, s.ng, b, wo_l, n, t1, t2, state, True)
-            bs = sc.bsdf_sample(b, wo_l, rng.next_float(state), rng.next_float(state),
-                                rng.next_float(state), True)
-            if not bs.ok:
-                break
-            d = to_world(bs.wi, t1, t2, n)
-            beta *= bs.weight
-            eta_scale *= bs.eta
-            prev_pdf_w = bs.pdf_fwd_w
-            prev_delta = bs.delta
-            if beta.max() <= 0.0:
-                break
-            if depth >= RR_DEPTH:
-                q = ti.min(beta.max() * eta_scale * eta_scale, 0.95)
-                if rng.next_float(state) >= q:
-                    break
-                beta /= q
-            o = sc.spawn(s.p, s.ng, d)
-            prev_p = s.p
-        return L
+    def on_surface(self, acc: ti.template(), w, s, wo):
+        """Emission found by BSDF sampling, weighted against light sampling; delta bounces
+        (and the camera) see emitters with weight 1."""
+        le = self.dscene.emitted(s.emitter, s.ns, wo)
+        if le.max() > 0.0:
+            weight = 1.0
+            if not w.last_delta:
+                # Distance from the vertex, not from the offset origin: otherwise the
+                # two MIS weights of a path do not sum to one (a bias of order eps/dist).
+                cos_l = ti.abs(s.ns.dot(wo))
+                dist2 = (s.p - w.prev_p).norm_sqr()
+                pdf_light_w = s.light_pdf_a * dist2 / ti.max(cos_l, 1e-12)
+                weight = power_heuristic(w.last_pdf_w, pdf_light_w)
+            acc.L += w.beta * le * weight
+
+    @ti.func
+    def at_vertex(self, acc: ti.template(), w, s, b: ti.i32, n, t1, t2, wo, wo_l, state: ti.template()) -> ti.i32:
+        acc.L += w.beta * next_event(self.dscene, s.p, s.ng, b, wo_l, n, t1, t2, state, True)
+        return CONTINUE
+
+    @ti.func
+    def after_scatter(self, acc: ti.template(), w, bs, q: ti.f32):
+        pass

@@ -25,17 +25,19 @@ import taichi as ti
 
 from ..errors import SettingsError
 from ..kernels import rng
-from ..kernels.device_scene import MISS, UNBOUNDED_DEPTH
+from ..kernels.camera_walk import STOP, THROUGHPUT_ROULETTE, camera_walk
+from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.direct import next_event
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import HashGrid
 from ..kernels.photon import MAX_PHOTON_SEGMENTS, trace_photon
-from ..kernels.sampling import onb, to_local, to_world, vec3
+from ..kernels.sampling import onb, to_local, vec3
 from .base import Method
 
 FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flux
 PI = math.pi                      # use as ti.f64(PI): a bare literal is a float32 constant (default_fp)
-RR_DEPTH = 5
+# One camera path's accumulators: direct light so far, its pixel, the initial-radius rule.
+CameraPath = ti.types.struct(direct=vec3, pixel=ti.i32, r_abs=ti.f32, r_per_dist=ti.f32)
 NORMAL_COS_MIN = 0.1              # photon and MP surfaces must face alike (mitsuba #145 family)
 
 
@@ -138,61 +140,46 @@ class Sppm(Method):
             i = y * sc.width + x
             state = rng.seed(seed, ti.u32(i), iteration * ti.u32(2))
             o, d = sc.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
-            W = vec3(1.0)
-            eta_scale = 1.0
-            travelled = 0.0
-            k = 0
             self.mp_valid[i] = 0
-            direct = vec3(0.0)
-            while True:
-                hit = sc.trace(o, d, ti.math.inf, False)
-                if hit.kind == MISS:
-                    break
-                k += 1
-                travelled += hit.t
-                s = sc.surface(o, d, hit)
-                wo = -d
-                direct += W * sc.emitted(s.emitter, s.ns, wo)   # only delta bounces so far: weight 1
-                b, n = sc.side_bsdf(s.material, s.ns, wo)
-                if b < 0:
-                    break
-                t1, t2 = onb(n)
-                wo_l = to_local(wo, t1, t2, n)
-                if not sc.bsdf_is_delta(b):
-                    if k < max_depth:
-                        direct += W * next_event(sc, s.p, s.ng, b, wo_l, n, t1, t2, state, False)
-                        self.mp_p[i] = s.p
-                        self.mp_n[i] = n
-                        self.mp_wo[i] = wo
-                        self.mp_W[i] = W
-                        self.mp_bsdf[i] = b
-                        self.mp_depth[i] = k
-                        self.mp_valid[i] = 1
-                        if self.R[i] == 0.0:      # first MP of this pixel: initial radius
-                            r0 = r_abs
-                            if r0 <= 0.0:
-                                r0 = r_per_dist * travelled
-                            self.R[i] = ti.max(ti.cast(r0, ti.f64), 1e-30)
-                        self.mp_radius[i] = ti.cast(self.R[i], ti.f32)
-                    break
-                if k >= max_depth:
-                    break
-                bs = sc.bsdf_sample(b, wo_l, rng.next_float(state), rng.next_float(state), rng.next_float(state), True)
-                if not bs.ok:
-                    break
-                W *= bs.weight
-                eta_scale *= bs.eta
-                if k >= RR_DEPTH:
-                    q = ti.min(W.max() * eta_scale * eta_scale, 0.95)
-                    if rng.next_float(state) >= q:
-                        break
-                    W /= q
-                d = to_world(bs.wi, t1, t2, n)
-                o = sc.spawn(s.p, s.ng, d)
+            acc = CameraPath(direct=vec3(0.0), pixel=i, r_abs=r_abs, r_per_dist=r_per_dist)
+            camera_walk(sc, o, d, state, max_depth, self, acc)
+            direct = acc.direct
             if (direct == direct).all() and direct.max() < ti.math.inf:
                 self.Ld[i] += ti.cast(direct, ti.f64)
             else:
                 ti.atomic_add(self.counters[1], 1)
+
+    # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
+    roulette = THROUGHPUT_ROULETTE
+
+    @ti.func
+    def on_surface(self, acc: ti.template(), w, s, wo):
+        # Only delta bounces come before the measurement point: emitters get weight 1.
+        acc.direct += w.beta * self.dscene.emitted(s.emitter, s.ns, wo)
+
+    @ti.func
+    def at_vertex(self, acc: ti.template(), w, s, b: ti.i32, n, t1, t2, wo, wo_l, state: ti.template()) -> ti.i32:
+        """The first non-delta vertex: next-event direct light, and the pixel's measurement point."""
+        i = acc.pixel
+        acc.direct += w.beta * next_event(self.dscene, s.p, s.ng, b, wo_l, n, t1, t2, state, False)
+        self.mp_p[i] = s.p
+        self.mp_n[i] = n
+        self.mp_wo[i] = wo
+        self.mp_W[i] = w.beta
+        self.mp_bsdf[i] = b
+        self.mp_depth[i] = w.length
+        self.mp_valid[i] = 1
+        if self.R[i] == 0.0:      # first MP of this pixel: initial radius
+            r0 = acc.r_abs
+            if r0 <= 0.0:
+                r0 = acc.r_per_dist * w.travelled
+            self.R[i] = ti.max(ti.cast(r0, ti.f64), 1e-30)
+        self.mp_radius[i] = ti.cast(self.R[i], ti.f32)
+        return STOP
+
+    @ti.func
+    def after_scatter(self, acc: ti.template(), w, bs, q: ti.f32):
+        pass
 
     @ti.kernel
     def _photon_pass(self, seed: ti.u32, iteration: ti.u32, n_photons: ti.i32, max_segments: ti.i32):

@@ -24,11 +24,12 @@ import taichi as ti
 from ..errors import SettingsError
 from ..film import SplatFilm
 from ..kernels import rng, vcm_mis
-from ..kernels.device_scene import MISS, UNBOUNDED_DEPTH
+from ..kernels.camera_walk import CONTINUE, MATERIAL_ROULETTE, camera_walk
+from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import PointGrid
 from ..kernels.photon import MAX_PHOTON_SEGMENTS, trace_photon
-from ..kernels.sampling import onb, to_local, to_world, vec3
+from ..kernels.sampling import onb, to_local, vec3
 from ..kernels.vcm_mis import MisConstants, PathVertex
 from .base import Method
 from .sppm import NORMAL_COS_MIN, _HashSource
@@ -39,6 +40,9 @@ TECHNIQUES = {"vcm": (True, True, True), "bpt": (True, False, True), "bpm": (Fal
 DEFAULT_RADIUS_PIXELS = 2.0      # r_1: pixel footprints at the median distance of the first hits
 INITIAL_VERTICES_PER_PATH = 4    # light-vertex storage per light subpath; grows when exceeded
 PI = math.pi
+# One camera subpath's accumulators and the iteration's settings it needs at its vertices.
+CameraSubpath = ti.types.struct(L=vec3, merged=ti.types.vector(3, ti.i64), m=vcm_mis.SubpathMis, pixel=ti.i32,
+                                max_depth=ti.i32, vm_normalization=ti.f32)
 
 
 @ti.data_oriented
@@ -303,54 +307,44 @@ class Vcm(Method):
             pixel = y * sc.width + x
             state = rng.seed(seed, ti.u32(pixel), iteration * ti.u32(2))
             o, d = sc.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
-            c = self.mis_constants()
-            m = vcm_mis.camera_start(sc.camera_pdf_w(d), c)
-            beta = vec3(1.0)
-            length = 0
-            specular = 1                 # only delta bounces so far
-            prev_p = o
-            L = vec3(0.0)
-            merged = ti.Vector([0, 0, 0], ti.i64)
-            while True:
-                hit = sc.trace(o, d, ti.math.inf, False)
-                if hit.kind == MISS:
-                    break
-                length += 1
-                s = sc.surface(o, d, hit)
-                wo = -d
-                vcm_mis.after_hit(m, (s.p - prev_p).norm_sqr(), s.ns.dot(wo))
-                eh = sc.emitter_hit(s, wo)
-                if eh.radiance.max() > 0.0:
-                    L += beta * eh.radiance * self._emitter_hit_weight(m, eh, length, specular)
-                b, n = sc.side_bsdf(s.material, s.ns, wo)
-                if ti.static(self.lt_only):
-                    break                # light tracing renders the rest
-                if b < 0 or length >= max_depth:
-                    break
-                t1, t2 = onb(n)
-                wo_l = to_local(wo, t1, t2, n)
-                q = sc.bsdf_continuation(b)
-                if not sc.bsdf_is_delta(b):
-                    cv = PathVertex(p=s.p, ng=s.ng, n=n, wo=wo, beta=beta, length=length, bsdf=b, dvcm=m.dvcm,
-                                    dvc=m.dvc, dvm=m.dvm)
-                    if ti.static(self.use_vc):
-                        if length + 1 <= max_depth:
-                            L += beta * self._next_event(cv, wo_l, t1, t2, q, state, c)
-                        L += beta * self._connect_to_light_path(store, pixel, cv, wo_l, t1, t2, q, c, max_depth)
-                    if ti.static(self.use_vm):
-                        merged += self._merge(store, grid, cv, wo_l, t1, t2, q, c, max_depth, vm_normalization)
-                bs = sc.bsdf_sample(b, wo_l, rng.next_float(state), rng.next_float(state), rng.next_float(state), True)
-                if not bs.ok:
-                    break
-                if rng.next_float(state) >= q:
-                    break
-                beta *= bs.weight / q
-                vcm_mis.after_scatter(m, bs.delta, bs.wi.z, bs.pdf_fwd_w * q, bs.pdf_rev_w * q, c)
-                specular &= bs.delta
-                d = to_world(bs.wi, t1, t2, n)
-                o = sc.spawn(s.p, s.ng, d)
-                prev_p = s.p
-            self.film.add_fixed(y, x, self.film.fixed(L) + merged)
+            acc = CameraSubpath(L=vec3(0.0), merged=ti.Vector([0, 0, 0], ti.i64),
+                                m=vcm_mis.camera_start(sc.camera_pdf_w(d), self.mis_constants()), pixel=pixel,
+                                max_depth=max_depth, vm_normalization=vm_normalization)
+            # Light tracing renders all but the emitters seen directly.
+            camera_walk(sc, o, d, state, 1 if ti.static(self.lt_only) else max_depth, self, acc)
+            self.film.add_fixed(y, x, self.film.fixed(acc.L) + acc.merged)
+
+    # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
+    roulette = MATERIAL_ROULETTE
+
+    @ti.func
+    def on_surface(self, acc: ti.template(), w, s, wo):
+        vcm_mis.after_hit(acc.m, (s.p - w.prev_p).norm_sqr(), s.ns.dot(wo))
+        eh = self.dscene.emitter_hit(s, wo)
+        if eh.radiance.max() > 0.0:
+            acc.L += w.beta * eh.radiance * self._emitter_hit_weight(acc.m, eh, w.length, w.specular)
+
+    @ti.func
+    def at_vertex(self, acc: ti.template(), w, s, b: ti.i32, n, t1, t2, wo, wo_l, state: ti.template()) -> ti.i32:
+        """Next-event estimation, connections and merging at a non-delta camera vertex."""
+        sc = self.dscene
+        c = self.mis_constants()
+        q = sc.bsdf_continuation(b)
+        cv = PathVertex(p=s.p, ng=s.ng, n=n, wo=wo, beta=w.beta, length=w.length, bsdf=b, dvcm=acc.m.dvcm,
+                        dvc=acc.m.dvc, dvm=acc.m.dvm)
+        if ti.static(self.use_vc):
+            if w.length + 1 <= acc.max_depth:
+                acc.L += w.beta * self._next_event(cv, wo_l, t1, t2, q, state, c)
+            acc.L += w.beta * self._connect_to_light_path(self.store, acc.pixel, cv, wo_l, t1, t2, q, c,
+                                                          acc.max_depth)
+        if ti.static(self.use_vm):
+            acc.merged += self._merge(self.store, self.grid, cv, wo_l, t1, t2, q, c, acc.max_depth,
+                                      acc.vm_normalization)
+        return CONTINUE
+
+    @ti.func
+    def after_scatter(self, acc: ti.template(), w, bs, q: ti.f32):
+        vcm_mis.after_scatter(acc.m, bs.delta, bs.wi.z, bs.pdf_fwd_w * q, bs.pdf_rev_w * q, self.mis_constants())
 
     @ti.func
     def _emitter_hit_weight(self, m, eh, length: ti.i32, specular: ti.i32) -> ti.f32:

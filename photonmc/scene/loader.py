@@ -91,7 +91,7 @@ class _Builder:
         self.base_dir = reader.path.parent
         self.bsdfs: list[Bsdf] = []
         self.materials: list[tuple] = []
-        self._bsdf_cache: dict[int, tuple] = {}
+        self._bsdf_cache: dict[int, tuple] = {}      # id(node) -> (node, sides)
         self.emitters: list[np.ndarray] = []
         self.tris = {"v": [], "n": [], "mat": [], "em": []}
         self.spheres = {"c": [], "r": [], "flip": [], "mat": [], "em": []}
@@ -257,9 +257,12 @@ class _Builder:
 
     def _bsdf_sides(self, node: Plugin, nested=False) -> tuple:
         """(front, back) BSDF indices for a bsdf plugin; -1 is black."""
+        # Keyed by identity; the cache also holds the node, so that a temporary node (a shape's
+        # default BSDF) is never freed and its id handed to a later one (which then got the
+        # earlier shape's BSDF: an emitter's black default on the next plain shape).
         key = id(node)
         if key in self._bsdf_cache:
-            return self._bsdf_cache[key]
+            return self._bsdf_cache[key][1]
         self._check_type(node)
         p = _Params(node, self.file)
         if node.type == "diffuse":
@@ -298,7 +301,7 @@ class _Builder:
                 c = self._resolve(c)
                 raise self.err(c.line, f"unsupported <{c.tag} type=\"{c.type}\"> inside <bsdf> "
                                        "(textures are not supported)")
-        self._bsdf_cache[key] = sides
+        self._bsdf_cache[key] = (node, sides)
         return sides
 
     def _albedo(self, p: _Params, name, default):
