@@ -12,6 +12,8 @@ from photonmc import load_scene
 from photonmc.errors import SettingsError
 from photonmc.imageio import read_image
 from photonmc.kernels.device_scene import DeviceScene
+from photonmc.kernels.fields import FieldGroup
+from photonmc.kernels.hashgrid import PointGrid
 from photonmc.loop import Budget, prepare, run
 from photonmc.metrics import luminance, mean_luminance
 
@@ -74,6 +76,46 @@ def test_camera_raster_inverts_camera_ray_and_its_pdf_is_one_per_pixel(name, par
     omega = _solid_angle_of_triangle(c[:, 0], c[:, 1], c[:, 3]) + _solid_angle_of_triangle(c[:, 0], c[:, 3], c[:, 2])
     np.testing.assert_allclose(pdf * omega, 1.0, rtol=2e-3)
     dscene.release()
+
+
+@ti.kernel
+def ball_query(grid: ti.template(), pos: ti.template(), r: ti.f32, x: ti.types.ndarray(dtype=ti.math.vec3, ndim=1),
+               hits: ti.types.ndarray(dtype=ti.i32, ndim=2)):
+    for q in range(x.shape[0]):
+        slots, n = grid.slots_near(x[q])
+        for k in range(n):
+            first, end = grid.slot_range(slots[k])
+            for e in range(first, end):
+                j = grid.entries[e]
+                if (grid.entry_pos[e] - x[q]).norm_sqr() <= r * r:
+                    hits[q, j] += 1
+
+
+@pytest.mark.parametrize("n", [20, 3000])
+def test_point_grid_finds_each_point_within_the_radius_once(n):
+    """Merging's grid: every valid point within r of a query, each exactly once (a point seen
+    under two of the query's cells that share a hash slot would be merged twice). With 20
+    points the table has 64 slots, so a query's 8 cells often share slots."""
+    rng = np.random.default_rng(5)
+    p = rng.uniform(-2, 2, (n, 3)).astype(np.float32)
+    v = (rng.random(n) < 0.9).astype(np.int32)
+    r = 0.3
+    f = FieldGroup("test-point-grid")
+    pos, valid = f.vector(3, ti.f32, n, p), f.scalar(ti.i32, n, v)
+    f.finalize()
+    grid = PointGrid(n)
+    grid.build(pos, r, valid)
+    x = np.concatenate([rng.uniform(-2.5, 2.5, (2000, 3)), p[rng.integers(0, n, 500)]]).astype(np.float32)
+    hits = np.zeros((len(x), n), np.int32)
+    ball_query(grid, pos, r, x, hits)
+    d2 = ((x[:, None, :] - p[None]) ** 2).sum(-1)
+    expected = (d2 <= r * r) & (v[None] == 1)
+    boundary = np.abs(d2 - r * r) < 1e-5
+    assert hits.max() == 1
+    assert np.array_equal(hits.astype(bool) | boundary, expected | boundary)
+    assert expected.sum() > (20 if n == 20 else 5000)
+    grid.release()
+    f.release()
 
 
 @pytest.mark.parametrize("techniques", VARIANTS)
