@@ -164,7 +164,7 @@ class Vcm(Method):
         f = FieldGroup("vcm")
         self.consts = f.vector(4, ti.f32, ())        # MisConstants of this iteration, then r^2
         self.first_hit = f.scalar(ti.f32, self.n_pixels)
-        self.counters = f.scalar(ti.i64, 2)          # 0: light subpaths that left a vertex, 1: vertices dropped
+        self.counters = f.scalar(ti.i64, 1)          # light subpaths that left a vertex
         f.finalize()
         self.fields = f
         radiance = dscene.scene.emitter_radiance
@@ -203,9 +203,7 @@ class Vcm(Method):
             t = t[np.isfinite(t) & (t > 0)]
             extent = self.dscene.extent
             median = float(np.median(t)) if len(t) else extent
-            self.r1 = max(DEFAULT_RADIUS_PIXELS * self.pixel_angle * median, 1e-7 * extent)
-            if self.options["radius_pixels"] != DEFAULT_RADIUS_PIXELS:
-                self.r1 *= self.options["radius_pixels"] / DEFAULT_RADIUS_PIXELS
+            self.r1 = max(float(self.options["radius_pixels"]) * self.pixel_angle * median, 1e-7 * extent)
         return self.r1 * (iteration + 1) ** ((self.alpha - 1.0) / 2.0)
 
     def _iterate(self):
@@ -214,6 +212,8 @@ class Vcm(Method):
         eta = PI * self.radius ** 2 * self.n_light
         self.consts[None] = [eta if self.use_vm else 0.0, 1.0 / eta if self.use_vc else 0.0, float(self.n_light),
                              self.radius ** 2]
+        # The store and the grid are template arguments of the passes (a grown store compiles
+        # them anew); without a store (light tracing only) any other object stands in.
         while True:
             if self.store is not None:
                 self.store.clear(self.n_light)
