@@ -1,4 +1,4 @@
-"""Photon paths as a pure function of a primary sample vector u in [0,1)^D.
+"""Photon paths (light subpaths) as a pure function of a primary sample vector u in [0,1)^D.
 
 Fixed layout (algorithms.md §0), so that a small change of u gives a nearby path and a
 Markov chain can mutate u directly:
@@ -8,9 +8,10 @@ Markov chain can mutate u directly:
     u[5+4b .. 8+4b]     bounce b: BSDF direction (2), lobe choice (1), Russian roulette (1)
 A `source` object supplies coordinates through `source.get(key, dim)`: a hash for plain
 photon tracing, a chain's stored state for MCMC. A `visitor` receives every photon vertex
-on a non-delta surface reached after at least two segments (direct light is computed by
-next-event estimation from the camera side) and returns 0 (unused), 1 (used) or 2 (used,
-and stop tracing: a visibility test needs no more).
+on a non-delta surface from its `visits_from_segment` on (SPPM: 2, direct light being the
+camera side's next-event estimation; VCM: 1) and returns 0 (unused), 1 (used) or 2 (used,
+and stop tracing: a visibility test needs no more). Roulette at a vertex survives with the
+material's `bsdf.continuation()`, so VCM can include it in reverse pdfs.
 trace_photon returns (used, dims): dims bounds the coordinates the path read, which lets a
 Markov chain store only that prefix of u.
 """
