@@ -9,6 +9,8 @@
 3. sppm: photon paths/s and iteration time on the Cornell box at 512x512, one photon path
    per pixel per iteration (SmallVCM's progressive photon mapping: about 0.75 M paths/s on
    2 cores on a comparable Cornell box, per ../shared/peers.md).
+4. vcm: iteration time on the same box at 512x512, one light and one camera subpath per pixel
+   (SmallVCM's vcm: 0.73 s on 2 cores).
 Compile time is excluded (a warm-up call first); each figure is the best of 3 runs.
 Needs the `tools` extra for the peers: pip install -e ".[tools]" embreex
 """
@@ -118,14 +120,14 @@ def bench_pt(iterations):
     return result
 
 
-def bench_sppm(iterations, res=512):
-    """Photon paths/s and iteration time of sppm on the Cornell box at res x res, one photon
-    path per pixel per iteration (SmallVCM's setting); the iteration includes the camera pass."""
+def _iteration_times(method, iterations, res):
+    """Median iteration time of `method` on the Cornell box at res x res (compile excluded),
+    with the method's final statistics."""
     from photonmc import load_scene
     from photonmc.loop import default_scene_path, prepare
 
     scene = load_scene(default_scene_path(), {"res": res})
-    p = prepare(scene, method="sppm")
+    p = prepare(scene, method=method)
     m = p.method
     m.iterate()                                           # compile
     m.reset()
@@ -136,11 +138,27 @@ def bench_sppm(iterations, res=512):
         times.append(time.perf_counter() - t)
     stats = m.stats()
     p.release()
-    per_it = float(np.median(times))
-    return {"resolution": [res, res], "photons_per_iteration": m.photons_per_iteration,
-            "iteration_s_median": per_it, "photon_paths_per_s_incl_camera_pass": m.photons_per_iteration / per_it,
+    return float(np.median(times)), stats
+
+
+def bench_sppm(iterations, res=512):
+    """Photon paths/s and iteration time of sppm on the Cornell box at res x res, one photon
+    path per pixel per iteration (SmallVCM's setting); the iteration includes the camera pass."""
+    per_it, stats = _iteration_times("sppm", iterations, res)
+    photons = stats["photons_per_iteration"]
+    return {"resolution": [res, res], "photons_per_iteration": photons,
+            "iteration_s_median": per_it, "photon_paths_per_s_incl_camera_pass": photons / per_it,
             "fraction_of_photon_paths_depositing": stats["fraction_of_photon_paths_depositing"],
             "smallvcm_ppm_reference_photon_paths_per_s": 0.75e6}
+
+
+def bench_vcm(iterations, res=512):
+    """Iteration time of vcm on the Cornell box at res x res: one light and one camera subpath
+    per pixel (SmallVCM's vcm on its Cornell box, 2 cores: 0.73 s per iteration, issue 12)."""
+    per_it, stats = _iteration_times("vcm", iterations, res)
+    return {"resolution": [res, res], "light_paths_per_iteration": stats["light_paths_per_iteration"],
+            "iteration_s_median": per_it, "light_vertices_per_iteration": stats["light_vertices_last_iteration"],
+            "smallvcm_vcm_reference_iteration_s": 0.73}
 
 
 def main():
@@ -148,13 +166,14 @@ def main():
     ap.add_argument("--rays", type=int, default=2_000_000)
     ap.add_argument("--pt-iterations", type=int, default=64)
     ap.add_argument("--sppm-iterations", type=int, default=10)
+    ap.add_argument("--vcm-iterations", type=int, default=10)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--json")
     args = ap.parse_args()
     from photonmc import runtime
     runtime.init("cpu", args.threads)
     res = {"cpu_threads": args.threads or os.cpu_count(), "bvh": bench_bvh(args.rays), "pt": bench_pt(args.pt_iterations),
-           "sppm": bench_sppm(args.sppm_iterations)}
+           "sppm": bench_sppm(args.sppm_iterations), "vcm": bench_vcm(args.vcm_iterations)}
     text = json.dumps(res, indent=2)
     print(text)
     if args.json:
