@@ -178,6 +178,7 @@ def test_one_light_path_per_iteration(write_scene):
 @pytest.mark.parametrize("options,message", [
     ({"radius": 0.0}, "--radius"), ({"radius": -1.0}, "--radius"), ({"alpha": 0.0}, "--alpha"),
     ({"alpha": 1.5}, "--alpha"), ({"light_paths": 0}, "--light-paths"), ({"techniques": "pm"}, "--techniques"),
+    ({"light_paths": 1 << 26}, "GiB to store"),
 ])
 def test_bad_options(options, message):
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})

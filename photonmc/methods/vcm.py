@@ -39,6 +39,8 @@ TECHNIQUES = {"vcm": (True, True, True), "bpt": (True, False, True), "bpm": (Fal
               "lt": (False, False, True)}
 DEFAULT_RADIUS_PIXELS = 2.0      # r_1: pixel footprints at the median distance of the first hits
 INITIAL_VERTICES_PER_PATH = 4    # light-vertex storage per light subpath; grows when exceeded
+BYTES_PER_STORED_VERTEX = 96 + 4 + 12 + 12   # record, order/valid, grid entry and position, table share
+MAX_STORE_BYTES = 8 << 30        # refuse (a clear error) rather than fail to allocate
 PI = math.pi
 # One camera subpath's accumulators and the iteration's settings it needs at its vertices.
 CameraSubpath = ti.types.struct(L=vec3, merged=ti.types.vector(3, ti.i64), m=vcm_mis.SubpathMis, pixel=ti.i32,
@@ -178,6 +180,11 @@ class Vcm(Method):
         self.store_grown = 0
 
     def _allocate_store(self, capacity: int):
+        need = capacity * BYTES_PER_STORED_VERTEX
+        if need > MAX_STORE_BYTES:
+            raise SettingsError(f"vcm would need {need / 2**30:.1f} GiB to store {capacity} light vertices per "
+                                f"iteration (at most {MAX_STORE_BYTES >> 30} GiB): use fewer --light-paths "
+                                f"(now {self.n_light}) or a smaller --max-depth")
         if self.store is not None:
             self.store.release()
         if self.grid is not None:
