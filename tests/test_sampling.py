@@ -31,10 +31,10 @@ def sample_many(kind: ti.i32, eta: ti.f32, wo: vec3, radiance: ti.i32, seed: ti.
         weight[i] = s.weight
         pdf[i] = s.pdf_fwd_w
         ok[i] = s.ok
-        p = bsdf.pdf_w(KINDS, kind, wo, s.wi)
+        p = bsdf.evaluate(KINDS, kind, vec3(0.5, 0.6, 0.7), wo, s.wi).pdf_fwd_w
         pdf_again[i] = p
         if p > 0.0:
-            eval_cos_over_pdf[i] = bsdf.eval_f(KINDS, kind, vec3(0.5, 0.6, 0.7), wo, s.wi) * s.wi.z / p
+            eval_cos_over_pdf[i] = bsdf.evaluate(KINDS, kind, vec3(0.5, 0.6, 0.7), wo, s.wi).f * s.wi.z / p
 
 
 def run_sampler(kind, wo, n=200_000, eta=1.5, radiance=False, seed=1):
@@ -61,7 +61,7 @@ def test_diffuse_sampling_follows_its_pdf():
     phi = (np.arctan2(wi[:, 1], wi[:, 0]) + math.pi) / (2 * math.pi)
     counts, _, _ = np.histogram2d(u, phi, bins=20, range=[[0, 1], [0, 1]])
     assert chi_square_uniform(counts) < 498
-    # The sampled pdf equals pdf_w(), and f*cos/pdf equals the returned weight.
+    # The sampled pdf equals evaluate()'s, and f*cos/pdf equals the returned weight.
     np.testing.assert_allclose(a["pdf"], a["pdf_again"], rtol=1e-5)
     np.testing.assert_allclose(a["eval_cos_over_pdf"], a["weight"], rtol=1e-4)
     np.testing.assert_allclose(a["weight"][0], [0.5, 0.6, 0.7], rtol=1e-6)
@@ -86,7 +86,7 @@ def test_diffuse_albedo_by_quadrature():
     @ti.kernel
     def f_cos(wi: ti.types.ndarray(dtype=vec3, ndim=1), out: ti.types.ndarray(dtype=vec3, ndim=1)):
         for i in range(wi.shape[0]):
-            out[i] = bsdf.eval_f(KINDS, DIFFUSE, vec3(0.5, 0.6, 0.7), vec3(0.0, 0.0, 1.0), wi[i]) * wi[i].z
+            out[i] = bsdf.evaluate(KINDS, DIFFUSE, vec3(0.5, 0.6, 0.7), vec3(0.0, 0.0, 1.0), wi[i]).f * wi[i].z
 
     f_cos(wi, out)
     albedo = out.mean(0) * 2 * math.pi

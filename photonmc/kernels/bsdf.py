@@ -88,25 +88,6 @@ def sample(kinds: ti.template(), kind: ti.i32, color, transmittance, eta: ti.f32
 
 
 @ti.func
-def eval_f(kinds: ti.template(), kind: ti.i32, color, wo, wi):
-    """f(wo, wi) of the non-delta lobes, without the cosine."""
-    f = vec3(0.0)
-    if ti.static(DIFFUSE in kinds):
-        if kind == DIFFUSE and wo.z > 0.0 and wi.z > 0.0:
-            f = color * INV_PI
-    return f
-
-
-@ti.func
-def pdf_w(kinds: ti.template(), kind: ti.i32, wo, wi) -> ti.f32:
-    p = 0.0
-    if ti.static(DIFFUSE in kinds):
-        if kind == DIFFUSE and wo.z > 0.0 and wi.z > 0.0:
-            p = wi.z * INV_PI
-    return p
-
-
-@ti.func
 def evaluate(kinds: ti.template(), kind: ti.i32, color, wo, wi):
     """f(wo, wi) of the non-delta lobes (no cosine), pdf of wi given wo and of wo given wi."""
     e = BsdfEval(f=vec3(0.0), pdf_fwd_w=0.0, pdf_rev_w=0.0)

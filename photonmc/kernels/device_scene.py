@@ -383,14 +383,6 @@ class DeviceScene:
                                self.bsdf_eta[b], wo_local, u1, u2, u3, radiance_mode)
 
     @ti.func
-    def bsdf_eval(self, b: ti.i32, wo_local, wi_local):
-        return bsdf_mod.eval_f(self.kinds, self.bsdf_kind[b], self.bsdf_color[b], wo_local, wi_local)
-
-    @ti.func
-    def bsdf_pdf(self, b: ti.i32, wo_local, wi_local) -> ti.f32:
-        return bsdf_mod.pdf_w(self.kinds, self.bsdf_kind[b], wo_local, wi_local)
-
-    @ti.func
     def bsdf_is_delta(self, b: ti.i32) -> ti.i32:
         return bsdf_mod.is_delta(self.bsdf_kind[b])
 

@@ -22,12 +22,13 @@ def next_event(sc: ti.template(), p, ng, b: ti.i32, wo_l, n, t1, t2, state: ti.t
         cos_l = -wi.dot(ls.n)
         wi_l = to_local(wi, t1, t2, n)
         if cos_l > 0.0:
-            f = sc.bsdf_eval(b, wo_l, wi_l)
+            e = sc.bsdf_evaluate(b, wo_l, wi_l)
+            f = e.f
             if f.max() > 0.0:
                 if sc.visible(p, ng, ls.p, ls.n):
                     pdf_light_w = ls.pdf_a * dist2 / cos_l
                     w = 1.0
                     if ti.static(use_mis):
-                        w = power_heuristic(pdf_light_w, sc.bsdf_pdf(b, wo_l, wi_l))
+                        w = power_heuristic(pdf_light_w, e.pdf_fwd_w)
                     contrib = f * ti.abs(wi_l.z) * ls.radiance * (w / pdf_light_w)
     return contrib

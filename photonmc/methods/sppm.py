@@ -218,7 +218,7 @@ class Sppm(Method):
         accumulator, and count the photon. Returns 0 for a non-finite contribution (dropped)."""
         nj = self.mp_n[j]
         t1, t2 = onb(nj)
-        f = self.dscene.bsdf_eval(self.mp_bsdf[j], to_local(self.mp_wo[j], t1, t2, nj), to_local(wi, t1, t2, nj))
+        f = self.dscene.bsdf_evaluate(self.mp_bsdf[j], to_local(self.mp_wo[j], t1, t2, nj), to_local(wi, t1, t2, nj)).f
         contrib = ti.cast(beta / self.power_scale * f, ti.f64)
         ok = 0
         if (contrib == contrib).all() and contrib.max() * weights.max() < 1e9:
