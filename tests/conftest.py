@@ -3,6 +3,7 @@ would discard every compiled kernel."""
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from photonmc import load_scene, runtime
@@ -68,3 +69,13 @@ def scaled_box_scene(write_scene, scale=1.0, radiance_scale=1.0):
         <shape type="rectangle"><transform name="to_world"><scale value="{0.3 * s}"/><rotate x="1" angle="90"/>
             <translate y="{0.99 * s}"/></transform>
             <emitter type="area"><rgb name="radiance" value="{5 * radiance_scale}"/></emitter></shape>"""))
+
+
+def slit_band(ref_luminance, margin=4):
+    """Image columns around the slit: the columns brighter than 1.5x the image mean (the lit
+    gap), widened by `margin` pixels on each side to cover its grazing-lit faces."""
+    column = ref_luminance.mean(axis=0)
+    bright = np.flatnonzero(column > 1.5 * column.mean())
+    band = np.zeros(column.shape, bool)
+    band[max(bright.min() - margin, 0):bright.max() + margin + 1] = True
+    return band

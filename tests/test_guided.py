@@ -9,7 +9,7 @@ from photonmc.imageio import read_image
 from photonmc.loop import Budget, prepare, run
 from photonmc.metrics import downsample, luminance, mean_luminance
 
-from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml, half_resolution
+from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml, half_resolution, slit_band
 from .test_pt import furnace_expectation, furnace_xml
 
 GUIDED = ["visibility", "spatial-tf"]
@@ -165,16 +165,6 @@ def test_statistics_reported(write_scene, method):
         assert set(s["swap_acceptance"]) == {"visibility<->inverse-area", "inverse-area<->spatial"}
 
 
-def _slit_band(ref_luminance, margin=4):
-    """Image columns around the slit: the columns brighter than 1.5x the image mean (the lit
-    gap), widened by `margin` pixels on each side to cover its grazing-lit faces."""
-    column = ref_luminance.mean(axis=0)
-    bright = np.flatnonzero(column > 1.5 * column.mean())
-    band = np.zeros(column.shape, bool)
-    band[max(bright.min() - margin, 0):bright.max() + margin + 1] = True
-    return band
-
-
 @pytest.mark.convergence
 @pytest.mark.parametrize("method", GUIDED)
 def test_guided_methods_converge_on_the_light_gap(method):
@@ -184,7 +174,7 @@ def test_guided_methods_converge_on_the_light_gap(method):
     which every photon-mapping method here shares and which shrinks only as the radius does
     (sppm there: -13 % at 100 iterations, -9 % at 400; docs/convergence.md)."""
     ref = luminance(read_image(REFS / "light-gap-64.exr"))
-    band = _slit_band(ref)
+    band = slit_band(ref)
     assert 0.1 < band.mean() < 0.3
     scene = load_scene(SCENES / "light-gap" / "scene.xml", {"res": 64})
     p = prepare(scene, method=method, seed=1)
