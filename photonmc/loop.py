@@ -73,6 +73,55 @@ def default_scene_path() -> Path:
     return Path(__file__).resolve().parent.parent / "scenes" / "cornell-box" / "scene.xml"
 
 
+@dataclass
+class Job:
+    """A render as asked for: what `photonmc render`, the preview, a resumed state and every
+    distributed worker build their method from (picklable, and saved in render states)."""
+    scene: str | None = None           # Mitsuba XML path; None: the bundled Cornell box
+    params: dict = field(default_factory=dict)
+    method: str = "pt"
+    seed: int = 0
+    max_depth: int | None = None
+    arch: str = "cpu"
+    threads: int | None = None
+    options: dict = field(default_factory=dict)
+    budget: Budget = field(default_factory=Budget)
+
+    def identity(self) -> dict:
+        """What decides the image (saved in a render state): not the budget, arch or threads."""
+        scene = Path(self.scene if self.scene is not None else default_scene_path()).resolve()
+        return {"scene": str(scene), "params": dict(self.params), "method": self.method, "seed": int(self.seed),
+                "max_depth": self.max_depth, "options": {k: v for k, v in self.options.items() if v is not None}}
+
+    @classmethod
+    def from_identity(cls, identity: dict, **rest) -> "Job":
+        return cls(scene=identity["scene"], params=dict(identity["params"]), method=identity["method"],
+                   seed=int(identity["seed"]), max_depth=identity["max_depth"], options=dict(identity["options"]),
+                   **rest)
+
+    def prepare(self) -> "Prepared":
+        return prepare(self.scene, method=self.method, seed=self.seed, max_depth=self.max_depth, arch=self.arch,
+                       threads=self.threads, options=self.options, params=self.params)
+
+
+def resume(state, arch: str = "cpu", threads: int | None = None) -> tuple["Prepared", Job]:
+    """Rebuild the render a state (state.RenderState) was saved from, with its accumulators:
+    iterating it goes on exactly where the saved render stopped."""
+    from . import state as render_state
+    job = Job.from_identity(state.job, arch=arch, threads=threads)
+    if not Path(job.scene).is_file():
+        raise render_state.StateError(f"the state's scene '{job.scene}' is not there any more")
+    prepared = job.prepare()
+    try:
+        render_state.check_fits(state, prepared.scene, job.method)
+        render_state.restore(prepared.method, state.plain, state.arrays)
+    except BaseException:
+        prepared.release()
+        raise
+    prepared.timings["resumed_elapsed"] = state.elapsed
+    return prepared, job
+
+
 def prepare(scene, method: str = "pt", seed: int = 0, max_depth: int | None = None,
             arch: str = "cpu", threads: int | None = None, options: dict | None = None,
             params: dict | None = None) -> Prepared:
@@ -121,10 +170,13 @@ class StopRequest:
             signal.signal(signal.SIGTERM, old_term)
 
 
-def progressive(method, budget: Budget, stop: StopRequest | None = None):
+def progressive(method, budget: Budget, stop: StopRequest | None = None, elapsed_before: float = 0.0):
     """Run iterations until the budget is spent (never, for an unlimited one) or a stop is
-    requested; yields (iteration, elapsed, iteration_time). Paused time is not elapsed."""
-    start = time.perf_counter()
+    requested; yields (iteration, elapsed, iteration_time). Paused time is not elapsed.
+    A resumed render counts its iterations and `elapsed_before` seconds in the budget."""
+    if budget.done(method.iterations, elapsed_before):
+        return
+    start = time.perf_counter() - elapsed_before
     paused = 0.0
     while True:
         t = time.perf_counter()
@@ -218,9 +270,10 @@ def run(prepared: Prepared, budget: Budget, quiet: bool = False, on_iteration=No
     stop = stop or StopRequest()
     bar = ProgressBar(m, budget, enabled=not quiet)
     iteration_times = []
-    elapsed = 0.0
+    elapsed = elapsed_before = prepared.timings.get("resumed_elapsed", 0.0)
+    work_before = m.work_done
     with stop.installed():
-        for iteration, elapsed, dt in progressive(m, budget, stop):
+        for iteration, elapsed, dt in progressive(m, budget, stop, elapsed_before):
             iteration_times.append(dt)
             bar.update(iteration, elapsed)
             if on_iteration is not None:
@@ -242,6 +295,7 @@ def run(prepared: Prepared, budget: Budget, quiet: bool = False, on_iteration=No
             "first_iteration_incl_compile": iteration_times[0] if iteration_times else 0.0,
             "steady_per_iteration": float(np.mean(steady)) if steady else None,
             "render": elapsed,
+            "render_this_run": elapsed - elapsed_before,
         },
         "interrupted": stop.requested,
         "nonfinite_pixels_zeroed": nonfinite_pixels,
@@ -249,5 +303,5 @@ def run(prepared: Prepared, budget: Budget, quiet: bool = False, on_iteration=No
         "arch": runtime._current[0] if runtime._current else None,
     }
     if steady:
-        stats[f"{m.work_unit}_per_second"] = m.work_done / len(iteration_times) / float(np.mean(steady))
+        stats[f"{m.work_unit}_per_second"] = (m.work_done - work_before) / len(iteration_times) / float(np.mean(steady))
     return RunResult(image.astype(np.float32), stats, stop.requested)

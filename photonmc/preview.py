@@ -17,14 +17,14 @@ import os
 import sys
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import imageio
 from .errors import PhotonmcError
-from .loop import Budget, RateMeter, StopRequest
+from .loop import Job, RateMeter, StopRequest
 
 FRAME_INTERVAL = 0.1        # s between images sent by the render process
 REDRAW_INTERVAL = 1 / 30    # s between window redraws
@@ -61,20 +61,6 @@ def display_problem() -> str | None:
 
 
 # -- the render process ----------------------------------------------------------------------
-@dataclass
-class Job:
-    """Everything the render process needs (picklable: it crosses a process boundary)."""
-    scene: str
-    params: dict
-    method: str
-    budget: Budget
-    seed: int = 0
-    max_depth: int | None = None
-    arch: str = "cpu"
-    threads: int | None = None
-    options: dict = field(default_factory=dict)
-
-
 class PreviewControl(StopRequest):
     """Stop and pause set by the window process, besides Ctrl-C in the render process."""
 
@@ -100,9 +86,8 @@ class PreviewControl(StopRequest):
 def _render_process(job: Job, conn, stop_event, pause_event):
     """Child process: prepare, then run the shared loop, sending images as they come."""
     try:
-        from .loop import prepare, run, safe_image
-        prepared = prepare(job.scene, method=job.method, seed=job.seed, max_depth=job.max_depth,
-                           arch=job.arch, threads=job.threads, options=job.options, params=job.params)
+        from .loop import run, safe_image
+        prepared = job.prepare()
         m = prepared.method
         conn.send(("ready", {"method": m.name, "work_unit": m.work_unit,
                              "total": job.budget.or_default(m.default_iterations).iterations}))

@@ -56,6 +56,7 @@ class Sppm(Method):
     work_unit = "photons"
     default_iterations = 100
     OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False}
+    TRANSIENT = ("grid",)     # rebuilt over the MPs every iteration (state.py)
     n_levels = 1          # flux accumulators per measurement point (one per Markov-chain level)
     # What trace_photon hands this visitor: vertices after the first segment (direct light is
     # the camera pass's), without the VCM partial sums.

@@ -133,6 +133,8 @@ class Vcm(Method):
     default_iterations = 64
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "techniques": "vcm", "light_vertex_capacity": None}
+    # The light vertices and their grid live for one iteration (state.py does not save them).
+    TRANSIENT = ("store", "grid")
     # What trace_photon hands this visitor: every non-delta vertex, with the MIS partial sums.
     visits_from_segment = 1
     with_mis = True

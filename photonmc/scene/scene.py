@@ -5,7 +5,8 @@ which is how Mitsuba's one-sided BSDFs behave. BSDF parameters live in small tab
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import hashlib
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -81,3 +82,31 @@ class Scene:
     def summary(self) -> str:
         return (f"{len(self.tri_vertices)} triangles, {len(self.sphere_radius)} spheres, "
                 f"{len(self.emitter_radiance)} emitters, {self.camera.width}x{self.camera.height}")
+
+    def fingerprint(self) -> str:
+        """A hash of everything the renderer sees (geometry, materials, emitters, camera,
+        depth), not of the file: a render state (state.py) is refused when the scene it
+        was rendered from has changed, however the change was made (file, mesh, -D)."""
+        h = hashlib.sha256()
+        for f in fields(self):
+            if f.name in ("path", "warnings"):
+                continue
+            h.update(f.name.encode())
+            _hash_value(h, getattr(self, f.name))
+        return h.hexdigest()
+
+
+def _hash_value(h, value):
+    if isinstance(value, np.ndarray):
+        h.update(str((value.dtype.str, value.shape)).encode())
+        h.update(np.ascontiguousarray(value).tobytes())
+    elif isinstance(value, (list, tuple)):
+        h.update(f"[{len(value)}".encode())
+        for v in value:
+            _hash_value(h, v)
+    elif hasattr(value, "__dataclass_fields__"):
+        for f in fields(value):
+            h.update(f.name.encode())
+            _hash_value(h, getattr(value, f.name))
+    else:
+        h.update(repr(value).encode())

@@ -1,0 +1,248 @@
+"""One image from several processes, on one machine or a Ray cluster (`--workers N`,
+`--address ADDR`; docs/resume.md).
+
+Each worker is a Ray actor holding one whole render with its own seed stream
+(merge.worker_seed: worker 0 renders what a single-process render would). The driver asks
+each worker to advance; a worker iterates until --sync-interval seconds have passed (at
+least one iteration) and answers with its render state (state.py). The driver keeps the
+latest state of every worker and merges them (merge.py) into the image it shows, writes
+and checkpoints. Because a state resumes exactly, a worker that dies is replaced by a new
+one resumed from its last state: the render loses the iterations since that state and
+nothing else, and with --iterations the final image is the one an undisturbed run gives.
+A worker that cannot be replaced keeps its last state in the merge; the others go on.
+
+Budgets count the whole render: --iterations N is the total over all workers (spread
+evenly), --time T the driver's wall clock.
+"""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import PhotonmcError, SettingsError
+from .loop import Budget, Job, StopRequest
+from .merge import merged_image, worker_seed
+from .state import RenderState, from_bytes
+
+MAX_RESTARTS = 2          # replacements per worker before its render is left as it is
+DEFAULT_SYNC_INTERVAL = 1.0
+WAIT_POLL = 0.25          # s between checks of the stop request while waiting on workers
+
+
+def _ray():
+    try:
+        import ray
+    except ImportError:
+        raise PhotonmcError("--workers needs Ray: pip install 'photonmc[distributed]'") from None
+    return ray
+
+
+def _worker_actor(ray):
+    class RenderWorker:
+        """One render in a Ray worker process: built fresh or resumed from a state."""
+
+        def __init__(self, identity: dict, state: bytes | None, arch: str, threads: int | None):
+            from .loop import Job, resume
+            self.error = None
+            try:
+                if state is not None:
+                    [member] = from_bytes(state, "the worker's state")
+                    self.prepared, self.job = resume(member, arch=arch, threads=threads)
+                    self.elapsed = member.elapsed
+                else:
+                    self.job = Job.from_identity(identity, arch=arch, threads=threads)
+                    self.prepared = self.job.prepare()
+                    self.elapsed = 0.0
+            except PhotonmcError as e:       # bad scene or settings: the driver reports it
+                self.error = str(e)
+
+        def ready(self) -> tuple[str | None, int]:
+            """(the error that stopped this render from being built, or None; the process id)."""
+            return self.error, os.getpid()
+
+        def advance(self, target_iterations: int | None, seconds_left: float | None, sync_interval: float) -> bytes:
+            from .state import state_of, to_bytes
+            m = self.prepared.method
+            t0 = time.perf_counter()
+            while target_iterations is None or m.iterations < target_iterations:
+                m.iterate()
+                spent = time.perf_counter() - t0
+                if spent >= sync_interval or (seconds_left is not None and spent >= seconds_left):
+                    break
+            self.elapsed += time.perf_counter() - t0
+            return to_bytes([state_of(m, self.job.identity(), self.prepared.scene, self.elapsed)])
+
+    return ray.remote(RenderWorker)
+
+
+@dataclass
+class Worker:
+    index: int
+    identity: dict
+    state: RenderState | None = None     # the latest state it sent (or was resumed from)
+    actor: object = None
+    pid: int | None = None               # of the worker process (tests kill it)
+    restarts: int = 0
+    lost: bool = False                   # could not be replaced: its last state stays in the merge
+    target: int | None = None            # iterations this worker's render should reach
+
+    @property
+    def iterations(self) -> int:
+        return self.state.iterations if self.state is not None else 0
+
+
+@dataclass
+class Progress:
+    """What the driver knows after each merge (the loop yields it)."""
+    workers: list
+    elapsed: float
+    events: list = field(default_factory=list)     # one line per worker lost or replaced
+
+    @property
+    def members(self) -> list[RenderState]:
+        return [w.state for w in self.workers if w.state is not None and w.state.iterations > 0]
+
+    @property
+    def iterations(self) -> int:
+        return sum(w.iterations for w in self.workers)
+
+    def image(self) -> np.ndarray:
+        return merged_image(self.members)
+
+
+def spread_iterations(done: list[int], total: int) -> list[int]:
+    """Per-worker iteration targets summing to `total` (at least what each has done), as
+    even as possible: the worker with the fewest gets the next one, lowest index first."""
+    targets = list(done)
+    for _ in range(max(total - sum(targets), 0)):
+        k = min(range(len(targets)), key=lambda i: (targets[i], i))
+        targets[k] += 1
+    return targets
+
+
+def render(job: Job, budget: Budget, workers: int, address: str | None = None,
+           resumed: list[RenderState] | None = None, sync_interval: float = DEFAULT_SYNC_INTERVAL,
+           stop: StopRequest | None = None):
+    """Run the distributed render; yields a Progress after every state a worker sends.
+    `resumed`: member states to continue (a merged state); workers beyond them start fresh."""
+    resumed = list(resumed or [])
+    if not 1 <= workers <= 4096:
+        raise SettingsError(f"--workers must be between 1 and 4096, got {workers}")
+    if len(resumed) > workers:
+        raise SettingsError(f"the state holds {len(resumed)} renders: resume it with --workers {len(resumed)} or more")
+    if not (sync_interval >= 0 and np.isfinite(sync_interval)):
+        raise SettingsError(f"--sync-interval must be >= 0 seconds, got {sync_interval}")
+    ray = _ray()
+    started_here = not ray.is_initialized()
+    cpus = os.cpu_count() or 1
+    threads = job.threads or (max(1, cpus // workers) if address is None else None)
+    if started_here:
+        if address is None:
+            ray.init(num_cpus=max(cpus, workers * (threads or 1)), include_dashboard=False,
+                     log_to_driver=False, configure_logging=False)
+        else:
+            try:
+                ray.init(address=address, log_to_driver=False, configure_logging=False)
+            except (ConnectionError, RuntimeError, ValueError) as e:
+                raise PhotonmcError(f"cannot join the Ray cluster at '{address}': {e}") from None
+    actor_class = _worker_actor(ray).options(num_cpus=threads or 1)
+    identity = job.identity()
+    pool = [Worker(k, m.job, state=m) for k, m in enumerate(resumed)]
+    used = {m.seed for m in resumed}
+    j = len(pool)
+    while len(pool) < workers:          # fresh workers: the next seed streams not yet in use
+        seed = worker_seed(job.seed, j)
+        j += 1
+        if seed not in used:
+            used.add(seed)
+            pool.append(Worker(len(pool), {**identity, "seed": seed}))
+    # Workers run side by side: a resumed render has run as long as its longest member.
+    progress = Progress(pool, max((w.state.elapsed for w in pool if w.state is not None), default=0.0))
+    if budget.iterations is not None:
+        for w, t in zip(pool, spread_iterations([w.iterations for w in pool], budget.iterations)):
+            w.target = t
+    stop = stop or StopRequest()
+    start = time.perf_counter() - progress.elapsed
+
+    def spawn(w: Worker):
+        from .state import to_bytes
+        state = to_bytes([w.state]) if w.state is not None else None
+        w.actor = actor_class.remote(w.identity, state, job.arch, threads)
+
+    def submit(w: Worker):
+        if w.target is not None and w.iterations >= w.target:
+            return None
+        left = None if budget.time is None else budget.time - (time.perf_counter() - start)
+        if left is not None and left <= 0:
+            return None
+        return w.actor.advance.remote(w.target, left, sync_interval)
+
+    pending = {}
+    try:
+        for w in pool:
+            spawn(w)
+        try:
+            answers = ray.get([w.actor.ready.remote() for w in pool])
+        except _actor_errors(ray) as e:
+            raise PhotonmcError(f"a worker could not start: {e}") from None
+        for w, (error, pid) in zip(pool, answers):
+            if error is not None:
+                raise PhotonmcError(error)
+            w.pid = pid
+        for w in pool:
+            ref = submit(w)
+            if ref is not None:
+                pending[ref] = w
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_POLL)
+            progress.elapsed = time.perf_counter() - start
+            if not ready:
+                continue
+            ref = ready[0]
+            w = pending.pop(ref)
+            try:
+                [w.state] = from_bytes(ray.get(ref), f"worker {w.index}'s state")
+            except _actor_errors(ray) as e:
+                _replace_or_lose(ray, w, pool, budget, progress, spawn, e)
+            if not (w.lost or stop.requested):
+                ref = submit(w)
+                if ref is not None:
+                    pending[ref] = w
+            yield progress
+    finally:
+        for w in pool:
+            if w.actor is not None:
+                ray.kill(w.actor)
+        if started_here:
+            ray.shutdown()
+
+
+def _actor_errors(ray) -> tuple:
+    """What Ray raises when a worker process or its node has gone."""
+    e = ray.exceptions
+    return (e.RayActorError, e.WorkerCrashedError, e.ActorUnavailableError, e.NodeDiedError)
+
+
+def _replace_or_lose(ray, w: Worker, pool, budget, progress, spawn, error):
+    if w.restarts < MAX_RESTARTS:
+        w.restarts += 1
+        progress.events.append(f"worker {w.index} died ({type(error).__name__}); resumed on a new worker "
+                               f"from its state after {w.iterations} iterations")
+        try:
+            spawn(w)
+            error, w.pid = ray.get(w.actor.ready.remote())
+            if error is None:
+                return
+        except _actor_errors(ray):
+            pass
+    w.lost = True
+    progress.events.append(f"worker {w.index} died again; its {w.iterations} iterations stay in the image")
+    if budget.iterations is not None:
+        alive = [x for x in pool if not x.lost]
+        if alive:
+            given = sum(x.iterations for x in pool if x.lost)
+            for x, t in zip(alive, spread_iterations([x.iterations for x in alive], budget.iterations - given)):
+                x.target = t
