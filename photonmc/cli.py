@@ -21,12 +21,18 @@ def _define(text: str):
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="photonmc", description="Photon-mapping renderer with MCMC-guided photons.")
     sub = p.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("render", help="render a scene to EXR + PNG")
-    _add_render_options(r, default_out="render.exr")
+    r = sub.add_parser("render", help="render a scene to EXR + PNG, and its render state")
+    _add_render_options(r, default_out=None)
     r.add_argument("--stats", metavar="PATH.json", help="write render statistics as JSON")
     r.add_argument("--checkpoint", type=float, default=60.0, metavar="SECONDS",
-                   help="also write the image every SECONDS while rendering (0: only at the end; default 60)")
+                   help="also write the image and the render state every SECONDS while rendering "
+                        "(0: only at the end; default 60)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
+    r.add_argument("--resume", metavar="X.state", help="continue the render this state was saved from; "
+                   "--iterations/--time count the whole render (default --out: X.exr)")
+    m = sub.add_parser("merge", help="merge render states of one scene rendered with different seeds")
+    m.add_argument("states", nargs="+", metavar="STATE", help="render states (.state) to merge")
+    m.add_argument("--out", required=True, help="merged .exr (also .png, and the merged .state beside it)")
     v = sub.add_parser("preview", help="watch a render refine in a window (keys: s save, +/- exposure, "
                                        "space pause, q quit and save)")
     _add_render_options(v, default_out="preview.exr", budget_help=" (default: until you quit)")
@@ -55,12 +61,13 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_render_options(r, default_out: str, budget_help: str = ""):
     """Options shared by `render` and `preview`: the same render, shown differently."""
     r.add_argument("scene", nargs="?", help="Mitsuba 3 XML scene (default: the bundled Cornell box)")
-    r.add_argument("--method", default="pt", help=f"one of {', '.join(PLANNED)} (default pt)")
+    r.add_argument("--method", help=f"one of {', '.join(PLANNED)} (default pt)")
     budget = r.add_mutually_exclusive_group()
     budget.add_argument("--time", type=float, help="wall-clock budget in seconds" + budget_help)
     budget.add_argument("--iterations", type=int, help="number of progressive iterations" + budget_help)
-    r.add_argument("--out", default=default_out, help=f"output .exr (also writes .png) or .png (default {default_out})")
-    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--out", default=default_out, help="output .exr (also writes .png) or .png "
+                   f"(default {default_out or 'render.exr'})")
+    r.add_argument("--seed", type=int, help="random seed (default 0)")
     r.add_argument("--arch", default="cpu", choices=["cpu", "cuda", "vulkan"])
     r.add_argument("--threads", type=int, help="CPU threads (default: all cores)")
     r.add_argument("--max-depth", type=int, help="override the scene's max_depth (Mitsuba meaning)")
@@ -71,6 +78,12 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
                                                  "(default: 2 pixel footprints at each pixel's first hit)")
     _add_guiding_options(r)
     _add_vcm_options(r)
+    d = r.add_argument_group("several processes or machines (needs photonmc[distributed], i.e. Ray)")
+    d.add_argument("--workers", type=int, help="independent renders (seed streams) merged into one image")
+    d.add_argument("--address", help="Ray cluster to join (default: start one on this machine)")
+    d.add_argument("--sync-interval", type=float, default=1.0, metavar="SECONDS",
+                   help="how often each worker sends its state to be merged (default 1; a worker that "
+                        "dies loses what it did since)")
     r.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE",
                    help="set a scene parameter ($NAME), overriding its <default>")
 
@@ -130,53 +143,132 @@ def cmd_converge(args) -> int:
     return 0
 
 
+def _job(args):
+    from .loop import Job
+    return Job(scene=args.scene, params=dict(args.defines), method=args.method or "pt", seed=args.seed or 0,
+               max_depth=args.max_depth, arch=args.arch, threads=args.threads, options=_method_options(args),
+               workers=args.workers, address=args.address, sync_interval=args.sync_interval)
+
+
+def _resumed(args):
+    """The member renders of --resume's state; the state decides the scene and settings."""
+    from . import state
+    given = [name for name, value in (("a scene", args.scene), ("--method", args.method), ("--seed", args.seed),
+                                      ("--max-depth", args.max_depth), ("-D", args.defines))
+             if value not in (None, [])]
+    given += ["--" + k.replace("_", "-") for k, v in _method_options(args).items() if v is not None]
+    if given:
+        raise PhotonmcError(f"--resume takes the scene and settings from the state; do not give {', '.join(given)}")
+    return state.load(args.resume)
+
+
 def cmd_render(args) -> int:
     from . import imageio
-    from .loop import Budget, prepare, run, safe_image
+    from .loop import Budget
 
+    if args.out is None:
+        args.out = str(Path(args.resume).with_suffix(".exr")) if args.resume else "render.exr"
     out = imageio.check_output_path(args.out)
     if args.stats and not Path(args.stats).resolve().parent.is_dir():
         raise PhotonmcError(f"directory for --stats '{args.stats}' does not exist")
     if not (args.checkpoint >= 0):
         raise PhotonmcError(f"--checkpoint must be >= 0 seconds, got {args.checkpoint}")
     budget = Budget(time=args.time, iterations=args.iterations)
-    options = _method_options(args)
-    prepared = prepare(args.scene, method=args.method, seed=args.seed, max_depth=args.max_depth,
-                       arch=args.arch, threads=args.threads, options=options, params=dict(args.defines))
+    members = _resumed(args) if args.resume else None
+    if args.workers is not None or args.address is not None or (members is not None and len(members) > 1):
+        return _render_distributed(args, out, budget, members)
+    return _render_here(args, out, budget, members[0] if members else None)
+
+
+def _render_here(args, out, budget, member) -> int:
+    from . import imageio, state
+    from .loop import resume, run, safe_image
+
+    if member is not None:
+        prepared, job = resume(member, arch=args.arch, threads=args.threads)
+    else:
+        job = _job(args)
+        prepared = job.prepare()
     for w in prepared.scene.warnings:
         print(f"photonmc: warning: {w}", file=sys.stderr)
+    state_path = out.with_suffix(".state")
+
     def metadata(iterations):
-        return {"method": args.method, "seed": args.seed, "iterations": iterations, "scene": prepared.scene.path}
+        return {"method": job.method, "seed": job.seed, "iterations": iterations, "scene": prepared.scene.path}
+
+    def save_state(method, elapsed):
+        state.save(state_path, [state.state_of(method, job.identity(), prepared.scene, elapsed)])
 
     last_write = [time.perf_counter()]
 
     def checkpoint(method, iteration, elapsed):
         if args.checkpoint > 0 and time.perf_counter() - last_write[0] >= args.checkpoint:
             imageio.write_image(out, safe_image(method.image()), metadata(iteration))
+            save_state(method, elapsed)
             last_write[0] = time.perf_counter()
 
     result = run(prepared, budget, quiet=args.quiet, on_iteration=checkpoint)
     written = imageio.write_image(out, result.image, metadata(result.stats["iterations"]))
+    save_state(prepared.method, result.stats["wall_seconds"]["render"])
+    written.append(state_path)
     stats = result.stats
     if stats.get("nonfinite_samples_dropped") or stats.get("nonfinite_pixels_zeroed"):
         print(f"photonmc: warning: {stats.get('nonfinite_samples_dropped', 0)} NaN/Inf samples dropped, "
               f"{stats['nonfinite_pixels_zeroed']} non-finite pixels set to 0", file=sys.stderr)
+    return _finish(args, stats, written, result.interrupted)
+
+
+def _finish(args, stats, written, interrupted) -> int:
     if args.stats:
         Path(args.stats).write_text(json.dumps(stats, indent=2) + "\n")
     if not args.quiet:
-        state = "interrupted after" if result.interrupted else "finished"
-        print(f"photonmc: {state} {stats['iterations']} iterations in {stats['wall_seconds']['render']:.1f} s; "
+        how = "interrupted after" if interrupted else "finished"
+        print(f"photonmc: {how} {stats['iterations']} iterations in {stats['wall_seconds']['render']:.1f} s; "
               f"wrote {', '.join(str(p) for p in written)}", file=sys.stderr)
-    return 130 if result.interrupted else 0
+    return 130 if interrupted else 0
+
+
+def _render_distributed(args, out, budget, members) -> int:
+    from . import distributed
+    from .loop import Job
+
+    if members is not None:
+        job = Job.from_identity(members[0].job, arch=args.arch, threads=args.threads)
+    else:
+        job = _job(args)
+    job.workers = args.workers if args.workers is not None else (len(members) if members else 1)
+    job.address, job.sync_interval = args.address, args.sync_interval
+    result = distributed.run(job, budget, resumed=members, out=out, checkpoint=args.checkpoint, quiet=args.quiet)
+    for line in result.events:
+        print(f"photonmc: warning: {line}", file=sys.stderr)
+    return _finish(args, result.stats, result.written, result.interrupted)
+
+
+def cmd_merge(args) -> int:
+    from . import imageio, merge, state
+    from .loop import safe_image
+
+    out = imageio.check_output_path(args.out)
+    members = [m for path in args.states for m in state.load(path)]
+    merge.check_mergeable(members)
+    summary = merge.summary(members)
+    written = imageio.write_image(out, safe_image(merge.merged_image(members)),
+                                  {"method": summary["method"], "seeds": summary["seeds"],
+                                   "iterations": summary["iterations"], "scene": members[0].job["scene"]})
+    written.append(state.save(out.with_suffix(".state"), members))
+    print(f"photonmc: merged {len(members)} renders ({summary['iterations']} iterations of {summary['method']}); "
+          f"wrote {', '.join(str(p) for p in written)}", file=sys.stderr)
+    return 0
 
 
 def cmd_preview(args) -> int:
     from .loop import Budget, default_scene_path
     from .methods import method_class
-    from .preview import Job, preview
+    from .loop import Job
+    from .preview import preview
     from .scene import load_scene
 
-    method_class(args.method)
+    method_class(args.method or "pt")
     params = dict(args.defines)
     scene_path = str(args.scene or default_scene_path())
     scene = load_scene(scene_path, params)      # fail here, before a window opens, on a bad scene
@@ -184,8 +276,9 @@ def cmd_preview(args) -> int:
         print(f"photonmc: warning: {w}", file=sys.stderr)
     budget = Budget(time=args.time, iterations=args.iterations,
                     until_stopped=args.time is None and args.iterations is None)
-    job = Job(scene=scene_path, params=params, method=args.method, budget=budget, seed=args.seed,
-              max_depth=args.max_depth, arch=args.arch, threads=args.threads, options=_method_options(args))
+    job = Job(scene=scene_path, params=params, method=args.method or "pt", budget=budget, seed=args.seed or 0,
+              max_depth=args.max_depth, arch=args.arch, threads=args.threads, options=_method_options(args),
+              workers=args.workers, address=args.address, sync_interval=args.sync_interval)
     return preview(job, args.out, frames_dir=args.frames, shape=(scene.camera.height, scene.camera.width))
 
 
@@ -198,6 +291,8 @@ def main(argv=None) -> int:
             return cmd_converge(args)
         if args.command == "preview":
             return cmd_preview(args)
+        if args.command == "merge":
+            return cmd_merge(args)
     except PhotonmcError as e:
         print(f"photonmc: error: {e}", file=sys.stderr)
         return 2

@@ -25,10 +25,9 @@ import numpy as np
 from .errors import PhotonmcError, SettingsError
 from .loop import Budget, Job, StopRequest
 from .merge import merged_image, worker_seed
-from .state import RenderState, from_bytes
+from .state import RenderState, from_bytes, save
 
 MAX_RESTARTS = 2          # replacements per worker before its render is left as it is
-DEFAULT_SYNC_INTERVAL = 1.0
 WAIT_POLL = 0.25          # s between checks of the stop request while waiting on workers
 
 
@@ -123,18 +122,25 @@ def spread_iterations(done: list[int], total: int) -> list[int]:
     return targets
 
 
-def render(job: Job, budget: Budget, workers: int, address: str | None = None,
-           resumed: list[RenderState] | None = None, sync_interval: float = DEFAULT_SYNC_INTERVAL,
-           stop: StopRequest | None = None):
-    """Run the distributed render; yields a Progress after every state a worker sends.
-    `resumed`: member states to continue (a merged state); workers beyond them start fresh."""
+def render(job: Job, budget: Budget, resumed: list[RenderState] | None = None, stop: StopRequest | None = None):
+    """Run the distributed render on job.workers workers; yields a Progress after every state a
+    worker sends. `resumed`: member states to continue (a merged state); workers beyond them
+    start fresh."""
     resumed = list(resumed or [])
+    workers = job.workers or max(len(resumed), 1)
+    address, sync_interval = job.address, job.sync_interval
     if not 1 <= workers <= 4096:
         raise SettingsError(f"--workers must be between 1 and 4096, got {workers}")
     if len(resumed) > workers:
         raise SettingsError(f"the state holds {len(resumed)} renders: resume it with --workers {len(resumed)} or more")
     if not (sync_interval >= 0 and np.isfinite(sync_interval)):
         raise SettingsError(f"--sync-interval must be >= 0 seconds, got {sync_interval}")
+    # Refuse a bad scene here, before a cluster starts (bad options: the workers say, see ready()).
+    from .loop import default_scene_path
+    from .methods import method_class
+    from .scene import load_scene
+    method_class(job.method)
+    load_scene(job.scene if job.scene is not None else default_scene_path(), job.params)
     ray = _ray()
     started_here = not ray.is_initialized()
     cpus = os.cpu_count() or 1
@@ -246,3 +252,68 @@ def _replace_or_lose(ray, w: Worker, pool, budget, progress, spawn, error):
             given = sum(x.iterations for x in pool if x.lost)
             for x, t in zip(alive, spread_iterations([x.iterations for x in alive], budget.iterations - given)):
                 x.target = t
+
+
+@dataclass
+class Result:
+    image: np.ndarray
+    members: list
+    stats: dict
+    written: list
+    events: list
+    interrupted: bool
+
+
+def run(job: Job, budget: Budget, resumed: list[RenderState] | None = None, out=None, checkpoint: float = 0.0,
+        quiet: bool = False, on_progress=None, stop: StopRequest | None = None) -> Result:
+    """The distributed render with a progress line, Ctrl-C handling and checkpoints of the
+    merged image and state (out: the .exr; its .state beside it)."""
+    import sys
+
+    from . import imageio
+    from .loop import safe_image
+    from .merge import summary
+    from .methods import method_class
+
+    budget = budget.or_default(method_class(job.method).default_iterations)
+    stop = stop or StopRequest()
+    show = not quiet and sys.stderr.isatty()
+    last_write = time.perf_counter()
+    progress = None
+
+    def write(progress) -> list:
+        if not progress.members or out is None:
+            return []
+        s = summary(progress.members)
+        written = imageio.write_image(out, safe_image(progress.image()),
+                                      {"method": job.method, "seeds": s["seeds"], "iterations": s["iterations"],
+                                       "scene": progress.members[0].job["scene"]})
+        return written + [save(out.with_suffix(".state"), progress.members)]
+
+    with stop.installed():
+        for progress in render(job, budget, resumed, stop):
+            if show:
+                total = f"/{budget.iterations}" if budget.iterations else ""
+                sys.stderr.write(f"\r[{job.method}] {len(progress.workers)} workers  iteration "
+                                 f"{progress.iterations}{total}  {progress.elapsed:.1f} s   ")
+                sys.stderr.flush()
+            if on_progress is not None:
+                on_progress(progress)
+            if checkpoint > 0 and time.perf_counter() - last_write >= checkpoint:
+                write(progress)
+                last_write = time.perf_counter()
+    if show:
+        sys.stderr.write("\n")
+    if progress is None and resumed:          # the resumed render had already met the budget
+        progress = Progress([Worker(k, m.job, state=m) for k, m in enumerate(resumed)], max(m.elapsed for m in resumed))
+    if progress is None or not progress.members:
+        raise PhotonmcError("no worker finished an iteration")
+    written = write(progress)
+    s = summary(progress.members)
+    stats = {**s, "workers": len(progress.workers), "scene": progress.members[0].job["scene"],
+             "resolution": list(progress.members[0].resolution),
+             "wall_seconds": {"render": progress.elapsed},
+             "worker_restarts": sum(w.restarts for w in progress.workers),
+             "workers_lost": sum(w.lost for w in progress.workers), "events": progress.events,
+             "interrupted": stop.requested}
+    return Result(progress.image(), progress.members, stats, written, progress.events, stop.requested)

@@ -86,6 +86,13 @@ class Job:
     threads: int | None = None
     options: dict = field(default_factory=dict)
     budget: Budget = field(default_factory=Budget)
+    workers: int | None = None         # several processes (distributed.py); None: this one
+    address: str | None = None         # Ray cluster to join
+    sync_interval: float = 1.0         # s between a worker's states
+
+    def __post_init__(self):
+        self.params = dict(self.params or {})
+        self.options = dict(self.options or {})
 
     def identity(self) -> dict:
         """What decides the image (saved in a render state): not the budget, arch or threads."""

@@ -86,6 +86,9 @@ class PreviewControl(StopRequest):
 def _render_process(job: Job, conn, stop_event, pause_event):
     """Child process: prepare, then run the shared loop, sending images as they come."""
     try:
+        if job.workers is not None:
+            _render_distributed(job, conn, stop_event, pause_event)
+            return
         from .loop import run, safe_image
         prepared = job.prepare()
         m = prepared.method
@@ -114,6 +117,30 @@ def _render_process(job: Job, conn, stop_event, pause_event):
         conn.send(("error", "render process failed:\n" + traceback.format_exc()))
     finally:
         conn.close()
+
+
+def _render_distributed(job: Job, conn, stop_event, pause_event):
+    """The render process of a preview on several workers: shows their merged image
+    (distributed.py). Pausing stops handing out work until resumed."""
+    from . import distributed
+    from .loop import safe_image
+    from .methods import method_class
+    budget = job.budget.or_default(method_class(job.method).default_iterations)
+    conn.send(("ready", {"method": f"{job.method} x{job.workers}", "work_unit": "iterations",
+                         "total": budget.iterations}))
+    control = PreviewControl(stop_event, pause_event)
+    progress, last = None, 0.0
+    for progress in distributed.render(job, budget, stop=control):
+        control.hold()
+        if progress.members and time.perf_counter() - last >= FRAME_INTERVAL:
+            rate = progress.iterations / max(progress.elapsed, 1e-9)
+            conn.send(("frame", progress.iterations, progress.elapsed, safe_image(progress.image()), rate,
+                       f"{len(progress.workers)} workers  " + "; ".join(progress.events[-1:])))
+            last = time.perf_counter()
+    if progress is not None and progress.members:
+        conn.send(("frame", progress.iterations, progress.elapsed, safe_image(progress.image()),
+                   progress.iterations / max(progress.elapsed, 1e-9), f"{len(progress.workers)} workers"))
+    conn.send(("done", {"iterations": progress.iterations if progress else 0}))
 
 
 # -- what is shown ---------------------------------------------------------------------------

@@ -1,0 +1,266 @@
+"""Render states: resume equals straight, bad states are refused, merges are what they claim,
+and a render on a local Ray cluster with a worker killed mid-render loses nothing."""
+import json
+import os
+import signal
+import zipfile
+
+import numpy as np
+import pytest
+
+from photonmc import state
+from photonmc.errors import PhotonmcError
+from photonmc.loop import Budget, Job, resume
+from photonmc.merge import check_mergeable, merged_image, worker_seed
+
+from .conftest import SCENES
+
+CORNELL = str(SCENES / "cornell-box" / "scene.xml")
+SMALL = {"res": "16"}
+OPTIONS = {"pt": {}, "sppm": {"photons": 512}, "visibility": {"photons": 512}, "spatial-tf": {"photons": 512},
+           "vcm": {"light_paths": 256}}
+
+
+def job(method, seed=3, **extra):
+    return Job(scene=CORNELL, params=SMALL, method=method, seed=seed, options=OPTIONS[method], **extra)
+
+
+def rendered(j: Job, iterations: int) -> state.RenderState:
+    p = j.prepare()
+    try:
+        for _ in range(iterations):
+            p.method.iterate()
+        return state.state_of(p.method, j.identity(), p.scene, elapsed=0.0)
+    finally:
+        p.release()
+
+
+@pytest.mark.parametrize("method", list(OPTIONS))
+def test_resume_equals_straight_bit_for_bit(method, tmp_path):
+    """N iterations, save, load, resume to 2N: the image of 2N straight, bit for bit."""
+    straight = rendered(job(method), 6)
+    path = state.save(tmp_path / "half.state", [rendered(job(method), 3)])
+    [half] = state.load(path)
+    assert half.iterations == 3
+    p, _ = resume(half)
+    try:
+        for _ in range(3):
+            p.method.iterate()
+        assert p.method.iterations == 6
+        resumed = p.method.image()
+    finally:
+        p.release()
+    assert np.array_equal(resumed, straight.image), np.abs(resumed - straight.image).max()
+    assert not np.array_equal(half.image, straight.image)
+
+
+def test_a_state_that_misses_part_of_the_method_does_not_resume_straight(monkeypatch, tmp_path):
+    """The check above can fail: leave the chain pool out of visibility's state and the
+    resumed image differs."""
+    from photonmc.kernels.mcmc import ChainPool
+    straight = rendered(job("visibility"), 6)
+    monkeypatch.setattr(ChainPool, "TRANSIENT", ("u", "T", "theta"), raising=False)
+    half = rendered(job("visibility"), 3)
+    p, _ = resume(half)
+    for _ in range(3):
+        p.method.iterate()
+    assert not np.array_equal(p.method.image(), straight.image)
+    p.release()
+
+
+def test_capture_refuses_state_it_cannot_save():
+    p = job("pt").prepare()
+    try:
+        p.method.unsaveable = object()
+        with pytest.raises(TypeError, match="unsaveable holds a object"):
+            state.capture(p.method)
+    finally:
+        p.release()
+
+
+def test_cli_resume_counts_the_whole_render(tmp_path):
+    from photonmc.cli import main
+    from photonmc.imageio import read_image
+    args = [CORNELL, "-D", "res=16", "--method", "sppm", "--seed", "2", "--quiet"]
+    assert main(["render", *args, "--iterations", "3", "--out", str(tmp_path / "a.exr")]) == 0
+    assert (tmp_path / "a.state").is_file()
+    assert main(["render", "--resume", str(tmp_path / "a.state"), "--iterations", "7", "--quiet"]) == 0
+    assert main(["render", *args, "--iterations", "7", "--out", str(tmp_path / "b.exr")]) == 0
+    assert np.array_equal(read_image(tmp_path / "a.exr"), read_image(tmp_path / "b.exr"))
+    [a] = state.load(tmp_path / "a.state")
+    assert a.iterations == 7
+    # Already past the budget: nothing more is rendered, the image is written again.
+    assert main(["render", "--resume", str(tmp_path / "a.state"), "--iterations", "5", "--quiet"]) == 0
+    assert state.load(tmp_path / "a.state")[0].iterations == 7
+
+
+def test_cli_resume_refuses_settings_of_its_own(tmp_path, capsys):
+    from photonmc.cli import main
+    path = state.save(tmp_path / "x.state", [rendered(job("pt"), 1)])
+    assert main(["render", "--resume", str(path), "--method", "sppm", "--photons", "9"]) == 2
+    assert "do not give --method, --photons" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory):
+    path = tmp_path_factory.mktemp("states") / "good.state"
+    state.save(path, [rendered(job("pt"), 2)])
+    return path
+
+
+def _rewrite_header(src, dst, change):
+    with np.load(src) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(bytes(arrays["header"]).decode())
+    change(header)
+    arrays["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
+    with open(dst, "wb") as f:
+        np.savez(f, **arrays)
+    return dst
+
+
+@pytest.mark.parametrize("case, message", [
+    ("truncated", "truncated or corrupt"),
+    ("corrupt", "truncated or corrupt"),
+    ("not-a-state", "truncated or corrupt"),
+    ("missing", "not found"),
+    ("version", "written by photonmc 0.0.1"),
+    ("format", "is not a photonmc render state"),
+])
+def test_bad_state_files_are_refused_in_one_line(case, message, saved, tmp_path):
+    bad = tmp_path / "bad.state"
+    data = saved.read_bytes()
+    if case == "truncated":
+        bad.write_bytes(data[: len(data) * 2 // 3])
+    elif case == "corrupt":
+        # Flip bytes inside the largest stored array: the zip's CRC-32 catches it.
+        with zipfile.ZipFile(saved) as z:
+            info = max(z.infolist(), key=lambda i: i.compress_size)
+        start = info.header_offset + 30 + len(info.filename) + len(info.extra) + info.compress_size // 2
+        bad.write_bytes(data[:start] + bytes(b ^ 0xFF for b in data[start:start + 16]) + data[start + 16:])
+    elif case == "not-a-state":
+        bad.write_text("<scene/>")
+    elif case == "version":
+        _rewrite_header(saved, bad, lambda h: h.update(photonmc_version="0.0.1"))
+    elif case == "format":
+        _rewrite_header(saved, bad, lambda h: h.update(format="something-else"))
+    with pytest.raises(state.StateError, match=message) as e:
+        state.load(bad)
+    assert "\n" not in str(e.value)
+
+
+def test_state_of_another_scene_or_method_is_refused(saved):
+    [member] = state.load(saved)
+    other = dict(member.job, params={"res": "16", "max_depth": "3"})
+    with pytest.raises(state.StateError, match="different scene"):
+        resume(state.RenderState(**{**vars(member), "job": other}))
+    with pytest.raises(state.StateError, match="a 'pt' render, not 'sppm'"):
+        from photonmc.scene import load_scene
+        state.check_fits(member, load_scene(CORNELL, SMALL), "sppm")
+
+
+def test_an_interrupted_write_keeps_the_previous_state(saved, tmp_path, monkeypatch):
+    path = tmp_path / "keep.state"
+    path.write_bytes(saved.read_bytes())
+    [member] = state.load(path)
+
+    def dies_half_way(f, **arrays):
+        f.write(b"PK\x03\x04 partial")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savez", dies_half_way)
+    with pytest.raises(KeyboardInterrupt):
+        state.save(path, [member])
+    monkeypatch.undo()
+    assert state.load(path)[0].iterations == member.iterations
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.state"]     # no temporary left behind
+
+
+# -- merging --------------------------------------------------------------------------------------
+def test_merge_of_pt_renders_is_their_sample_average_and_error_falls_as_one_over_sqrt_k():
+    """K independent pt renders of n iterations, merged: exactly the mean of all their
+    samples, and the mean squared error against a long render falls like 1/K (RMSE like
+    K^-1/2). The MSE for each K is averaged over the disjoint groups of K of 16 renders:
+    one render's RMSE at 4 samples per pixel is dominated by a few bright pixels."""
+    n, ks, count = 4, (1, 2, 4, 8), 16
+    members = [rendered(job("pt", seed=worker_seed(11, k)), n) for k in range(count)]
+    reference = rendered(job("pt", seed=99), 2048).image
+    mse = []
+    for k in ks:
+        groups = [members[g:g + k] for g in range(0, count, k)]
+        for group in groups:
+            assert np.allclose(merged_image(group), sum(m.image for m in group) / k, rtol=1e-12, atol=0)
+        mse.append(float(np.mean([np.mean((merged_image(group) - reference) ** 2) for group in groups])))
+    slope = np.polyfit(np.log(ks), np.log(np.sqrt(mse)), 1)[0]
+    print(f"merged pt RMSE {np.round(np.sqrt(mse), 5).tolist()} for K = {ks}: slope {slope:.2f}")
+    assert -0.62 < slope < -0.38
+
+
+def test_merge_refuses_renders_that_are_not_independent_or_not_alike():
+    a = rendered(job("pt", seed=1), 1)
+    b = rendered(job("pt", seed=2), 1)
+    check_mergeable([a, b])
+    with pytest.raises(state.StateError, match="both have seed 1"):
+        check_mergeable([a, a])
+    with pytest.raises(state.StateError, match="other settings"):
+        check_mergeable([a, state.RenderState(**{**vars(b), "job": {**b.job, "max_depth": 2}})])
+    with pytest.raises(state.StateError, match="different scene"):
+        check_mergeable([a, state.RenderState(**{**vars(b), "scene_hash": "0"})])
+    s = rendered(job("sppm", seed=2), 1)
+    with pytest.raises(state.StateError, match="cannot merge a 'sppm' render with a 'pt' render"):
+        check_mergeable([a, s])
+
+
+def test_cli_merge_writes_image_and_merged_state(tmp_path):
+    from photonmc.cli import main
+    from photonmc.imageio import read_image
+    paths = [state.save(tmp_path / f"{k}.state", [rendered(job("sppm", seed=k), 2 + k)]) for k in range(2)]
+    assert main(["merge", *map(str, paths), "--out", str(tmp_path / "m.exr")]) == 0
+    members = state.load(tmp_path / "m.state")
+    assert [m.iterations for m in members] == [2, 3]
+    expected = (2 * members[0].image + 3 * members[1].image) / 5
+    assert np.allclose(read_image(tmp_path / "m.exr"), expected, rtol=1e-6, atol=1e-7)
+
+
+# -- a local Ray cluster ---------------------------------------------------------------------------
+def test_two_ray_workers_with_one_killed_lose_nothing():
+    """2 workers on a local Ray cluster, 24 iterations in all, one worker's process killed
+    (SIGKILL) mid-render. Its replacement resumes from its last state, so the merged image
+    is exactly that of the two seed streams rendered undisturbed in this process, and within
+    noise of one render of the same total work."""
+    from photonmc import distributed
+    j = job("pt", seed=5, workers=2, sync_interval=0.0)
+    killed = None
+    for progress in distributed.render(j, Budget(iterations=24)):
+        counts = [w.iterations for w in progress.workers]
+        if killed is None and counts[1] >= 4:
+            killed = counts[1]
+            os.kill(progress.workers[1].pid, signal.SIGKILL)
+    assert killed is not None and killed < 12
+    assert [w.iterations for w in progress.workers] == [12, 12]
+    assert [w.restarts for w in progress.workers] == [0, 1]
+    assert "worker 1 died" in progress.events[0]
+    undisturbed = merged_image([rendered(job("pt", seed=worker_seed(5, k)), 12) for k in range(2)])
+    assert np.array_equal(progress.image(), undisturbed)
+    p = job("pt", seed=5).prepare()
+    for _ in range(24):
+        p.method.iterate()
+    single, stderr = p.method.image(), p.method.standard_error()
+    p.release()
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    difference = (progress.image() - single) @ lum
+    z = difference.mean() / (np.sqrt(2.0) * np.sqrt(np.mean(stderr ** 2) / stderr.size))
+    print(f"merged vs single render of the same work: mean luminance difference {difference.mean():.5f} ({z:.2f} sigma)")
+    assert abs(z) < 4.0
+
+
+def test_distributed_bad_input_is_one_line(tmp_path):
+    """A bad scene is refused before any worker starts; a bad option by the workers."""
+    from photonmc import distributed
+    bad = tmp_path / "bad.xml"
+    bad.write_text('<scene version="3.0.0"><shape type="teapot"/></scene>')
+    with pytest.raises(PhotonmcError, match="teapot"):
+        list(distributed.render(Job(scene=str(bad), workers=2), Budget(iterations=2)))
+    with pytest.raises(PhotonmcError, match="--photons must be between 1 and 2"):
+        list(distributed.render(Job(scene=CORNELL, params=SMALL, method="sppm", options={"photons": 0}, workers=2),
+                                Budget(iterations=2)))
