@@ -1,8 +1,13 @@
 """One image from several processes, on one machine or a Ray cluster (`--workers N`,
 `--address ADDR`; docs/resume.md).
 
-Each worker is a Ray actor holding one whole render with its own seed stream
-(merge.worker_seed: worker 0 renders what a single-process render would). The driver asks
+Each worker is a Ray actor holding one render. Where a method's iterations depend only
+on their index (pt, vcm), worker k of W renders the iterations k, k+W, ... of the one render
+the seed names, so the merged image is that render's (bias included), whatever W. For the
+others (sppm and the guided methods carry per-pixel radii and chains from iteration to
+iteration) each worker renders a whole render with its own seed stream (merge.worker_seed:
+worker 0 renders what a single-process render would); docs/resume.md says what their
+merge means. The driver asks
 each worker to advance; a worker iterates until --sync-interval seconds have passed (at
 least one iteration) and answers with its render state (state.py). The driver keeps the
 latest state of every worker and merges them (merge.py) into the image it shows, writes
@@ -157,6 +162,9 @@ def render(job: Job, budget: Budget, resumed: list[RenderState] | None = None, s
     actor_class = _worker_actor(ray).options(num_cpus=threads or 1)
     identity = job.identity()
     pool = [Worker(k, m.job, state=m) for k, m in enumerate(resumed)]
+    if not resumed and workers > 1 and method_class(job.method).independent_iterations:
+        # Interleaved slices of one render: the merge is the render one process would make.
+        pool = [Worker(k, {**identity, "iteration_slice": [k, workers]}) for k in range(workers)]
     used = {m.seed for m in resumed}
     j = len(pool)
     while len(pool) < workers:          # fresh workers: the next seed streams not yet in use

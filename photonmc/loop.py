@@ -89,6 +89,8 @@ class Job:
     workers: int | None = None         # several processes (distributed.py); None: this one
     address: str | None = None         # Ray cluster to join
     sync_interval: float = 1.0         # s between a worker's states
+    # (offset, stride): render only iterations offset, offset+stride, ... (Method.interleave)
+    iteration_slice: tuple = (0, 1)
 
     def __post_init__(self):
         self.params = dict(self.params or {})
@@ -97,18 +99,28 @@ class Job:
     def identity(self) -> dict:
         """What decides the image (saved in a render state): not the budget, arch or threads."""
         scene = Path(self.scene if self.scene is not None else default_scene_path()).resolve()
-        return {"scene": str(scene), "params": dict(self.params), "method": self.method, "seed": int(self.seed),
-                "max_depth": self.max_depth, "options": {k: v for k, v in self.options.items() if v is not None}}
+        identity = {"scene": str(scene), "params": dict(self.params), "method": self.method, "seed": int(self.seed),
+                    "max_depth": self.max_depth, "options": {k: v for k, v in self.options.items() if v is not None}}
+        if tuple(self.iteration_slice) != (0, 1):
+            identity["iteration_slice"] = list(self.iteration_slice)
+        return identity
 
     @classmethod
     def from_identity(cls, identity: dict, **rest) -> "Job":
         return cls(scene=identity["scene"], params=dict(identity["params"]), method=identity["method"],
                    seed=int(identity["seed"]), max_depth=identity["max_depth"], options=dict(identity["options"]),
-                   **rest)
+                   iteration_slice=tuple(identity.get("iteration_slice", (0, 1))), **rest)
 
     def prepare(self) -> "Prepared":
-        return prepare(self.scene, method=self.method, seed=self.seed, max_depth=self.max_depth, arch=self.arch,
-                       threads=self.threads, options=self.options, params=self.params)
+        prepared = prepare(self.scene, method=self.method, seed=self.seed, max_depth=self.max_depth, arch=self.arch,
+                           threads=self.threads, options=self.options, params=self.params)
+        if tuple(self.iteration_slice) != (0, 1):
+            try:
+                prepared.method.interleave(*self.iteration_slice)
+            except BaseException:
+                prepared.release()
+                raise
+        return prepared
 
 
 def resume(state, arch: str = "cpu", threads: int | None = None) -> tuple["Prepared", Job]:

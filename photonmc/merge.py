@@ -1,8 +1,11 @@
 """Merging independent renders of one scene (`photonmc merge`, and the driver of a render on
 several workers, distributed.py). docs/resume.md says what a merge means for each method.
 
-Every member of a merge is a whole render with its own seed stream. The merged image is
-the iteration-weighted mean of the members' images:
+Every member of a merge is a whole render with its own seed stream, or, for methods whose
+iterations are independent (pt, vcm: Method.independent_iterations), an interleaved slice
+of one render (iterations k, k+W, ...). The merged image is the iteration-weighted mean of
+the members' images; the slices of one render merge into that render (to float rounding),
+bias included. For independent seed streams:
 - pt: iteration k of a render is one sample per pixel, so this is the mean of all samples
   of all members, the same estimator as one render with their total samples (only the
   order of float additions differs);
@@ -27,7 +30,11 @@ def worker_seed(seed: int, worker: int) -> int:
 
 
 def _identity_without_seed(member: RenderState) -> dict:
-    return {k: v for k, v in member.job.items() if k != "seed"}
+    return {k: v for k, v in member.job.items() if k not in ("seed", "iteration_slice")}
+
+
+def iteration_slice(member: RenderState) -> tuple[int, int]:
+    return tuple(member.job.get("iteration_slice", (0, 1)))
 
 
 def check_mergeable(members: list[RenderState]) -> None:
@@ -45,10 +52,13 @@ def check_mergeable(members: list[RenderState]) -> None:
         if _identity_without_seed(m) != _identity_without_seed(first):
             raise StateError(f"render {k + 1} has other settings than render 1 "
                              f"({_difference(_identity_without_seed(first), _identity_without_seed(m))})")
-        if m.seed in seeds:
-            raise StateError(f"renders {seeds[m.seed] + 1} and {k + 1} both have seed {m.seed}: they are the "
-                             f"same samples, not independent ones (render them with different --seed)")
-        seeds[m.seed] = k
+        # Same seed: only disjoint interleaved slices of one render (same stride, other offsets).
+        for j in seeds.get(m.seed, []):
+            (o1, s1), (o2, s2) = iteration_slice(members[j]), iteration_slice(m)
+            if s1 == 1 or s1 != s2 or o1 == o2:
+                raise StateError(f"renders {j + 1} and {k + 1} both have seed {m.seed}: they are the same samples, "
+                                 f"not independent ones (render them with different --seed)")
+        seeds.setdefault(m.seed, []).append(k)
 
 
 def _difference(a: dict, b: dict) -> str:

@@ -28,6 +28,12 @@ class Method:
     work_unit = "paths"              # what work_done counts, for rates in progress and stats
     default_iterations = 64
     OPTIONS: dict = {}               # method-specific options and their defaults
+    # True where an iteration depends on nothing but its index (the seed, and for vcm the
+    # radius schedule r_i): several workers can then render interleaved slices of one render
+    # (worker k of W takes indices k, k+W, ...), and their merge is that render
+    # (distributed.py, docs/resume.md). Progressive per-pixel statistics (sppm's radii) and
+    # Markov chains carry state from one iteration to the next, so not for those.
+    independent_iterations = False
 
     def __init__(self, dscene, settings: MethodSettings):
         self.dscene = dscene
@@ -35,12 +41,27 @@ class Method:
         self.seed_u32 = settings.seed & 0xFFFFFFFF
         self.iterations = 0
         self.work_done = 0
+        self.slice_offset, self.slice_stride = 0, 1
         given = {k: v for k, v in settings.options.items() if v is not None}
         unknown = set(given) - set(self.OPTIONS)
         if unknown:
             names = ", ".join("--" + k.replace("_", "-") for k in sorted(unknown))
             raise SettingsError(f"method '{self.name}' does not take {names}")
         self.options = {**self.OPTIONS, **given}
+
+    def interleave(self, offset: int, stride: int) -> None:
+        """Render only the iteration indices offset, offset + stride, ... of the render."""
+        if not self.independent_iterations and stride != 1:
+            raise SettingsError(f"method '{self.name}' cannot render interleaved slices of its iterations")
+        if not (0 <= offset < stride) or self.iterations:
+            raise SettingsError(f"bad iteration slice {offset}/{stride}")
+        self.slice_offset, self.slice_stride = int(offset), int(stride)
+
+    @property
+    def iteration_index(self) -> int:
+        """The index of the next iteration within the whole render (its random numbers, and
+        vcm's radius, are drawn for this index)."""
+        return self.slice_offset + self.slice_stride * self.iterations
 
     def iterate(self) -> None:
         self._iterate()

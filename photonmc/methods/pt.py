@@ -26,6 +26,7 @@ Radiance = ti.types.struct(L=vec3)
 class PathTracer(Method):
     name = "pt"
     work_unit = "samples"
+    independent_iterations = True
 
     def __init__(self, dscene: DeviceScene, settings: MethodSettings):
         super().__init__(dscene, settings)
@@ -34,7 +35,7 @@ class PathTracer(Method):
         self.max_depth = UNBOUNDED_DEPTH if depth == -1 else depth
 
     def _iterate(self):
-        self._trace_pixels(self.seed_u32, self.iterations, self.max_depth)
+        self._trace_pixels(self.seed_u32, self.iteration_index, self.max_depth)
         self.film.samples_per_pixel += 1
         self.work_done += self.dscene.width * self.dscene.height
 

@@ -131,6 +131,7 @@ class Vcm(Method):
     name = "vcm"
     work_unit = "paths"
     default_iterations = 64
+    independent_iterations = True     # the radius is r_1 i^((alpha-1)/2) of the index i alone
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "techniques": "vcm", "light_vertex_capacity": None}
     # The light vertices and their grid live for one iteration (state.py does not save them).
@@ -216,7 +217,7 @@ class Vcm(Method):
         return self.r1 * (iteration + 1) ** ((self.alpha - 1.0) / 2.0)
 
     def _iterate(self):
-        it = self.iterations
+        it = self.iteration_index
         self.radius = self._radius_at(it)
         eta = PI * self.radius ** 2 * self.n_light
         self.consts[None] = [eta if self.use_vm else 0.0, 1.0 / eta if self.use_vc else 0.0, float(self.n_light),
