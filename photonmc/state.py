@@ -8,7 +8,8 @@ anyway (hash grids, the light-vertex store) and so need not be saved. A value of
 type is an error at save time, so a method that gains state cannot silently lose it on
 resume; the resume-equals-straight tests check the rest (tests/test_state.py).
 
-A state file is a zip (NumPy .npz, uncompressed) of one JSON header and the arrays. It
+A state file is a zip (NumPy .npz, uncompressed) of one JSON header and the arrays (large
+mostly-zero ones as their non-zero entries). It
 holds one or more member renders: one for `photonmc render`, several after `photonmc
 merge` or a render on several workers (merge.py). The zip's CRC-32 of every member catches
 a corrupt file, its central directory a truncated one; save() writes a temporary file and
@@ -31,6 +32,7 @@ FORMAT = "photonmc-render-state"
 FORMAT_VERSION = 1
 SCALARS = (bool, int, float, str, type(None))
 SKIPPED = ("dscene", "settings", "options")       # given by the job, not computed
+SPARSE_MIN_BYTES = 1 << 20
 
 
 class StateError(PhotonmcError):
@@ -220,14 +222,36 @@ def to_bytes(members: list[RenderState]) -> bytes:
 
 
 def _write_npz(f, members):
-    header = {"format": FORMAT, "format_version": FORMAT_VERSION, "photonmc_version": _version(),
-              "members": [m.header() for m in members]}
-    payload = {"header": np.frombuffer(json.dumps(header).encode(), np.uint8)}
+    """An .npz (np.load reads it). A large array that is mostly zeros (the spatial target's
+    hashed cluster table: 96 MiB at 256x256, nearly all empty) is stored as the indices and
+    values of its non-zero entries; the header gives its shape."""
+    payload, headers = {}, []
     for k, m in enumerate(members):
+        h = m.header()
+        h["sparse"] = {}
         payload[f"{k}/image"] = m.image
         for name, a in m.arrays.items():
+            a = np.asarray(a)
+            if a.nbytes > SPARSE_MIN_BYTES:
+                flat = a.reshape(-1)
+                index = np.flatnonzero(flat)
+                if len(index) < flat.size // 4:
+                    h["sparse"][name] = list(a.shape)
+                    payload[f"{k}/{name}.index"] = index
+                    payload[f"{k}/{name}.values"] = flat[index]
+                    continue
             payload[f"{k}/{name}"] = a
-    np.savez(f, **payload)
+        headers.append(h)
+    header = {"format": FORMAT, "format_version": FORMAT_VERSION, "photonmc_version": _version(),
+              "members": headers}
+    np.savez(f, header=np.frombuffer(json.dumps(header).encode(), np.uint8), **payload)
+
+
+def _dense(z, key: str, shape) -> np.ndarray:
+    values = z[f"{key}.values"]
+    a = np.zeros(int(np.prod(shape)), values.dtype)
+    a[z[f"{key}.index"]] = values
+    return a.reshape(shape)
 
 
 def load(path) -> list[RenderState]:
@@ -250,14 +274,16 @@ def from_bytes(data: bytes, name: str = "the render state") -> list[RenderState]
                                  f"(format {FORMAT_VERSION}): resume it with that version")
             members = []
             for k, h in enumerate(header["members"]):
-                arrays = {a: z[f"{k}/{a}"] for a in h["arrays"]}
+                sparse = h.get("sparse", {})
+                arrays = {a: _dense(z, f"{k}/{a}", sparse[a]) if a in sparse else z[f"{k}/{a}"] for a in h["arrays"]}
                 members.append(RenderState(job=h["job"], scene_hash=h["scene_hash"],
                                            resolution=tuple(h["resolution"]), iterations=int(h["iterations"]),
                                            work_done=int(h["work_done"]), elapsed=float(h["elapsed"]),
                                            image=z[f"{k}/image"], plain=h["plain"], arrays=arrays))
     except StateError:
         raise
-    except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError, UnicodeDecodeError, TypeError) as e:
+    except (zipfile.BadZipFile, ValueError, KeyError, IndexError, OSError, EOFError, UnicodeDecodeError,
+            TypeError) as e:
         raise StateError(f"'{name}' is truncated or corrupt ({type(e).__name__}: {e})") from None
     if not members:
         raise StateError(f"'{name}' holds no render")

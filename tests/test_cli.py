@@ -135,6 +135,10 @@ def test_ctrl_c_keeps_the_image_computed_so_far(tmp_path):
     assert read_metadata(out)["iterations"] == str(s["iterations"])
     assert read_image(out).mean() > 0
     assert "Traceback" not in err
+    # The render state beside it holds the same iterations: resuming loses nothing.
+    from photonmc.state import load
+    [state] = load(out.with_suffix(".state"))
+    assert state.iterations == s["iterations"]
 
 
 @pytest.mark.skipif(os.name != "posix", reason="SIGTERM semantics")

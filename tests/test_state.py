@@ -92,6 +92,11 @@ def test_cli_resume_counts_the_whole_render(tmp_path):
     # Already past the budget: nothing more is rendered, the image is written again.
     assert main(["render", "--resume", str(tmp_path / "a.state"), "--iterations", "5", "--quiet"]) == 0
     assert state.load(tmp_path / "a.state")[0].iterations == 7
+    # --time counts the whole render too: a budget the saved render has spent adds nothing.
+    spent = state.load(tmp_path / "a.state")[0].elapsed
+    assert spent > 0
+    assert main(["render", "--resume", str(tmp_path / "a.state"), "--time", str(spent / 2), "--quiet"]) == 0
+    assert state.load(tmp_path / "a.state")[0].iterations == 7
 
 
 def test_cli_resume_refuses_settings_of_its_own(tmp_path, capsys):
@@ -164,11 +169,11 @@ def test_an_interrupted_write_keeps_the_previous_state(saved, tmp_path, monkeypa
     path.write_bytes(saved.read_bytes())
     [member] = state.load(path)
 
-    def dies_half_way(f, **arrays):
+    def dies_half_way(f, members):
         f.write(b"PK\x03\x04 partial")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(np, "savez", dies_half_way)
+    monkeypatch.setattr(state, "_write_npz", dies_half_way)
     with pytest.raises(KeyboardInterrupt):
         state.save(path, [member])
     monkeypatch.undo()
@@ -314,3 +319,11 @@ def test_cli_workers_then_resume_the_merged_state(tmp_path, capsys, ray_cluster)
     assert np.allclose(merged_image(members), single, rtol=1e-12, atol=1e-15)
     assert main(["render", "--resume", str(tmp_path / "w.state"), "--workers", "1", "--iterations", "9"]) == 2
     assert "the state holds 2 renders: resume it with --workers 2 or more" in capsys.readouterr().err
+
+
+def test_api_iterate_on_workers_shows_the_merged_image(ray_cluster):
+    import photonmc
+    frames = list(photonmc.iterate(CORNELL, method="sppm", iterations=4, workers=2, params=SMALL, photons=512))
+    assert [f.iteration for f in frames][-1] == 4
+    assert frames[-1].stats["renders"] == 2 and frames[-1].stats["iterations_per_render"] == [2, 2]
+    assert frames[-1].image.shape == (16, 16, 3) and frames[-1].image.mean() > 0

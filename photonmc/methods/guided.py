@@ -303,7 +303,7 @@ class SpatialTarget(GuidedPhotons):
     n_levels = 3
     level_names = ("visibility", "inverse-area", "spatial")
     OPTIONS = {**GuidedPhotons.OPTIONS, "path_target": "max"}
-    TRANSIENT = ("_valid", "_pos", "_area")     # this pass's MPs, set by _prepare_targets
+    TRANSIENT = Sppm.TRANSIENT + ("_valid", "_pos", "_area")     # this pass's MPs, set by _prepare_targets
 
     def __init__(self, dscene, settings):
         path_target = {**self.OPTIONS, **{k: v for k, v in settings.options.items() if v is not None}}["path_target"]
