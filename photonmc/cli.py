@@ -18,6 +18,15 @@ def _define(text: str):
     return name, value
 
 
+def _photons(text: str):
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of photons or 'auto', got '{text}'") from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="photonmc", description="Photon-mapping renderer with MCMC-guided photons.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -49,7 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--seed", type=int, default=0)
     c.add_argument("--threads", type=int)
     c.add_argument("--max-depth", type=int)
-    c.add_argument("--photons", type=int)
+    c.add_argument("--photons", type=_photons, help="photon paths per iteration, or auto")
     c.add_argument("--alpha", type=float)
     c.add_argument("--radius", type=float)
     _add_guiding_options(c)
@@ -72,7 +81,9 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
     r.add_argument("--threads", type=int, help="CPU threads (default: all cores)")
     r.add_argument("--max-depth", type=int, help="override the scene's max_depth (Mitsuba meaning)")
     pm = r.add_argument_group("photon mapping (sppm, visibility, spatial-tf)")
-    pm.add_argument("--photons", type=int, help="photon paths per iteration (default: one per pixel)")
+    pm.add_argument("--photons", type=_photons, help="photon paths per iteration (default: one per pixel); "
+                    "auto (sppm): balanced against the camera pass from the error and work of each, "
+                    "measured as it renders (docs/effort.md)")
     pm.add_argument("--alpha", type=float, help="fraction of new photons kept by the radius update (default 2/3)")
     pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
                                                  "(default: 2 pixel footprints at each pixel's first hit)")

@@ -33,6 +33,13 @@ def dimensions(max_segments: int) -> int:
 
 
 @ti.func
+def photon_segments(dims: ti.i32) -> ti.i32:
+    """Segments a photon path traced, from the coordinates it read (trace_photon's second
+    result): LIGHT_DIMS for the first, BOUNCE_DIMS for each scatter after it."""
+    return 1 + (dims - LIGHT_DIMS) // BOUNCE_DIMS
+
+
+@ti.func
 def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.template(), vkey, max_segments: ti.i32):
     """Trace one photon (light subpath); returns (1 if the visitor used any vertex, coordinates read).
 

@@ -37,7 +37,7 @@ from ..kernels.mcmc import (
     UNIFORM_VISIBLE,
     ChainPool,
 )
-from ..kernels.photon import dimensions, trace_photon
+from ..kernels.photon import dimensions, photon_segments, trace_photon
 from .clusters import HitDensityClusters
 from .sppm import FIXED_ONE, Sppm
 
@@ -69,6 +69,9 @@ class GuidedPhotons(Sppm):
     path_target_sum = False
 
     def __init__(self, dscene, settings):
+        if settings.options.get("photons") == "auto":
+            raise SettingsError(f"--photons auto is for sppm; {self.name}'s passes last until every chain "
+                                f"regenerates (docs/effort.md)")
         super().__init__(dscene, settings)
         opts = self.options
         self.n_chains = int(opts["chains"] if opts["chains"] is not None else DEFAULT_CHAINS)
@@ -81,6 +84,11 @@ class GuidedPhotons(Sppm):
             raise SettingsError(f"--proposal-failures must be 'keep' or 'drop', got '{opts['proposal_failures']}'")
         self.drop_failures = opts["proposal_failures"] == "drop"
         self.expected_values = bool(opts["expected_values"])
+        # The effort balance is measured (stats) but does not steer the guided methods: their
+        # passes already lengthen until every chain regenerates, and steering them too made
+        # visibility 7.5 % worse on the gap-lit close-up at equal time (docs/effort.md).
+        if self.n_chains < 2:
+            self.effort = None     # the balance splits a pass's chains in two halves (effort.py)
         self.pool = ChainPool(self.n_chains, self.n_levels, dimensions(self.max_photon_segments),
                               self.drop_failures, self.expected_values,
                               burn_in=LADDER_BURN_IN if self.n_levels > 1 else 0.0)
@@ -132,6 +140,7 @@ class GuidedPhotons(Sppm):
         self.target_scratch[vkey] = ti.Vector([0.0] * self.n_levels)
         _, dims = trace_photon(self.dscene, source, key, self, vkey, ti.static(self.max_photon_segments))
         ti.atomic_add(self.paths_traced[None], 1)
+        ti.atomic_add(self.counters[3], photon_segments(dims))
         return self.target_scratch[vkey], dims
 
     @ti.func
@@ -179,7 +188,7 @@ class GuidedPhotons(Sppm):
                             t[2] += self.importance[j]
                         else:
                             t[2] = ti.max(t[2], self.importance[j])
-                elif self.deposit_at(j, wi, beta, fw):
+                elif self.deposit_at(j, wi, beta, fw, vkey & 1):
                     hit = 1
                     if ti.static(self.n_levels > 1):
                         for level in ti.static(range(self.n_levels)):
@@ -208,7 +217,7 @@ class GuidedPhotons(Sppm):
         scale = np.where(recorded > 0, b * n_p / np.maximum(recorded, 1e-300), 0.0)
         self.level_scale.from_numpy(scale * (self.power_scale / FIXED_ONE))
         self._after_pass(scale)
-        self._update(self.alpha)
+        self._update_balanced(n_p)
         self.pool.adapt(tallies, self.target_acceptance)
         if (b > 0).all():
             self.b_mis.from_numpy(b.astype(np.float32))

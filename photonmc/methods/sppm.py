@@ -30,14 +30,15 @@ from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.direct import next_event
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import HashGrid
-from ..kernels.photon import MAX_PHOTON_SEGMENTS, trace_photon
+from ..kernels.photon import MAX_PHOTON_SEGMENTS, photon_segments, trace_photon
 from ..kernels.sampling import onb, to_local, vec3
 from .base import Method
+from .effort import EffortBalance
 
 FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flux
 PI = math.pi                      # use as ti.f64(PI): a bare literal is a float32 constant (default_fp)
 # One camera path's accumulators: direct light so far, its pixel, the initial-radius rule.
-CameraPath = ti.types.struct(direct=vec3, pixel=ti.i32, r_abs=ti.f32, r_per_dist=ti.f32)
+CameraPath = ti.types.struct(direct=vec3, pixel=ti.i32, r_abs=ti.f32, r_per_dist=ti.f32, rays=ti.i32)
 NORMAL_COS_MIN = 0.1              # photon and MP surfaces must face alike (mitsuba #145 family)
 
 
@@ -68,8 +69,14 @@ class Sppm(Method):
         opts = self.options
         w, h = dscene.width, dscene.height
         self.n_pixels = w * h
-        self.photons_per_iteration = int(self.n_pixels if opts["photons"] is None else opts["photons"])
+        # --photons N fixes the photons per pass (default one per pixel); auto follows the
+        # effort balance (effort.py), starting from one per pixel.
+        self.balanced = opts["photons"] == "auto"
+        if opts["photons"] is not None and not self.balanced and not isinstance(opts["photons"], (int, np.integer)):
+            raise SettingsError(f"--photons must be a number of photons or 'auto', got '{opts['photons']}'")
+        self.photons_per_iteration = int(self.n_pixels if opts["photons"] in (None, "auto") else opts["photons"])
         self.alpha = float(opts["alpha"])
+        self.effort = EffortBalance(self.n_pixels, self.photons_per_iteration, self.alpha)   # measured either way (stats)
         if not 1 <= self.photons_per_iteration <= 1 << 28:
             raise SettingsError(f"--photons must be between 1 and 2^28, got {self.photons_per_iteration}")
         if not 0.0 < self.alpha < 1.0:
@@ -105,11 +112,19 @@ class Sppm(Method):
         self.D = f.vector(3, ti.f64, n)
         self.tau = f.vector(3, ti.f64, n)
         self.Ld = f.vector(3, ti.f64, n)
+        self.ld_pass = f.vector(3, ti.f64, n)           # this iteration's direct light
         # Per-iteration accumulators (fixed point) and counters.
         self.M = f.scalar(ti.i64, n)
         self.phi = f.vector(3, ti.i64, (self.n_levels, n))
+        self.phi_odd = f.vector(3, ti.i64, (self.n_levels, n))   # the odd half's part of phi (effort.py)
+        self.estimate_last = f.scalar(ti.f64, n)    # per pixel: the last iteration's own estimate
+        self.spread = f.scalar(ti.f64, n)           # per pixel: (this estimate - the last one)^2
+        self.half_difference = f.scalar(ti.f64, n)  # per pixel: n (t_a - t_b)^2 / 4
+        self.effort_sums = f.scalar(ti.f64, 6)      # their sums, and the pass's counted work
         self.level_scale = f.scalar(ti.f64, self.n_levels)     # fixed point -> flux, per level
-        self.counters = f.scalar(ti.i64, 2)      # 0: photon paths that deposited, 1: non-finite direct samples
+        # 0: photon paths that deposited, 1: non-finite direct samples, 2: camera rays this
+        # pass, 3: photon segments this pass (the work the effort balance counts)
+        self.counters = f.scalar(ti.i64, 4)
         f.finalize()
         self.fields = f
         self.grid = HashGrid(n)
@@ -119,20 +134,39 @@ class Sppm(Method):
         self.fields.release()
 
     def _reset(self):
-        for f in (self.R, self.N, self.D, self.tau, self.Ld, self.M, self.phi, self.counters, self.mp_valid):
+        for f in (self.R, self.N, self.D, self.tau, self.Ld, self.M, self.phi, self.phi_odd, self.counters,
+                  self.mp_valid):
             f.fill(0)
         self.photons_emitted = 0
+        if self.balanced:
+            self.photons_per_iteration = self.n_pixels
+        if self.effort is not None:
+            self.effort = EffortBalance(self.n_pixels, self.photons_per_iteration, self.alpha)
 
     # -- the iteration -----------------------------------------------------------------
     def _iterate(self):
         it = self.iterations
+        n_p = self.photons_per_iteration
         self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle)
         self.grid.build(self.mp_p, self.mp_radius, self.mp_valid)
-        self._photon_pass(self.seed_u32, it, self.photons_per_iteration, self.max_photon_segments)
+        self._photon_pass(self.seed_u32, it, n_p, self.max_photon_segments)
         self.level_scale[0] = self.power_scale / FIXED_ONE
-        self._update(self.alpha)
-        self.photons_emitted += self.photons_per_iteration
-        self.work_done += self.photons_per_iteration
+        self._update_balanced(n_p)
+        self.photons_emitted += n_p
+        self.work_done += n_p
+
+    def _update_balanced(self, n_p: int):
+        """The progressive update, and the effort balance's view of this iteration."""
+        self._update(self.alpha, n_p)
+        if self.effort is None:
+            return
+        self._effort_sums()
+        spread, half, radius_sq, valid, camera_rays, segments = self.effort_sums.to_numpy()
+        n = float(self.n_pixels)
+        self.effort.observe(n_p, spread / n, half / n, radius_sq / max(valid, 1.0),
+                            camera_rays + n, segments)      # rays, and the grid over the MPs
+        if self.balanced:
+            self.photons_per_iteration = self.effort.next_photons()
 
     @ti.kernel
     def _camera_pass(self, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32, r_abs: ti.f32, r_per_dist: ti.f32):
@@ -142,13 +176,16 @@ class Sppm(Method):
             state = rng.seed(seed, ti.u32(i), iteration * ti.u32(2))
             o, d = sc.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
             self.mp_valid[i] = 0
-            acc = CameraPath(direct=vec3(0.0), pixel=i, r_abs=r_abs, r_per_dist=r_per_dist)
+            acc = CameraPath(direct=vec3(0.0), pixel=i, r_abs=r_abs, r_per_dist=r_per_dist, rays=1)
             camera_walk(sc, o, d, state, max_depth, self, acc)
             direct = acc.direct
+            self.ld_pass[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             if (direct == direct).all() and direct.max() < ti.math.inf:
                 self.Ld[i] += ti.cast(direct, ti.f64)
+                self.ld_pass[i] = ti.cast(direct, ti.f64)
             else:
                 ti.atomic_add(self.counters[1], 1)
+            ti.atomic_add(self.counters[2], acc.rays)
 
     # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
     roulette = THROUGHPUT_ROULETTE
@@ -163,6 +200,7 @@ class Sppm(Method):
         """The first non-delta vertex: next-event direct light, and the pixel's measurement point."""
         i = acc.pixel
         acc.direct += w.beta * next_event(self.dscene, s.p, s.ng, b, wo_l, n, t1, t2, state, False)
+        acc.rays = w.length + 1           # the segments to here and the shadow ray
         self.mp_p[i] = s.p
         self.mp_n[i] = n
         self.mp_wo[i] = wo
@@ -186,9 +224,10 @@ class Sppm(Method):
     def _photon_pass(self, seed: ti.u32, iteration: ti.u32, n_photons: ti.i32, max_segments: ti.i32):
         for p in range(n_photons):
             key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
-            used, _ = trace_photon(self.dscene, _HashSource, key, self, 0, max_segments)
+            used, dims = trace_photon(self.dscene, _HashSource, key, self, p & 1, max_segments)
             if used:
                 ti.atomic_add(self.counters[0], 1)
+            ti.atomic_add(self.counters[3], photon_segments(dims))
 
     @ti.func
     def accepts(self, j: ti.i32, x, n, wi, segments: ti.i32) -> ti.i32:
@@ -210,13 +249,14 @@ class Sppm(Method):
         for e in range(first, end):
             j = self.grid.entries[e]
             if self.accepts(j, x, n, wi, segments):
-                used |= self.deposit_at(j, wi, beta, ti.Vector([1.0]))
+                used |= self.deposit_at(j, wi, beta, ti.Vector([1.0]), vkey & 1)
         return used
 
     @ti.func
-    def deposit_at(self, j, wi, beta, weights) -> ti.i32:
+    def deposit_at(self, j, wi, beta, weights, odd: ti.i32) -> ti.i32:
         """Add photon power beta arriving from wi to MP j, weight[l] of it to level l's
-        accumulator, and count the photon. Returns 0 for a non-finite contribution (dropped)."""
+        accumulator, and count the photon. `odd`: the photon belongs to the odd half of the
+        pass (effort.py). Returns 0 for a non-finite contribution (dropped)."""
         nj = self.mp_n[j]
         t1, t2 = onb(nj)
         f = self.dscene.bsdf_evaluate(self.mp_bsdf[j], to_local(self.mp_wo[j], t1, t2, nj), to_local(wi, t1, t2, nj)).f
@@ -229,29 +269,67 @@ class Sppm(Method):
                     fixed = ti.cast(contrib * ti.cast(weights[level], ti.f64) * FIXED_ONE + 0.5, ti.i64)
                     for c in ti.static(range(3)):
                         ti.atomic_add(self.phi[level, j][c], fixed[c])
+                        if odd:
+                            ti.atomic_add(self.phi_odd[level, j][c], fixed[c])
             ok = 1
         return ok
 
     @ti.kernel
-    def _update(self, alpha: ti.f64):
+    def _update(self, alpha: ti.f64, n_p: ti.f64):
+        lum = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
         for i in range(self.n_pixels):
             m = ti.cast(self.M[i], ti.f64)
+            # This iteration's estimate of the pixel (direct + its photons alone) and of each
+            # half of its photons, for the effort balance (effort.py), before the update.
+            inc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            inc_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             if self.mp_valid[i] and m > 0.0:
                 r = self.R[i]
                 n_old = self.N[i]
                 n_new = n_old + alpha * m
                 r_new = r * ti.sqrt(n_new / (n_old + m))
                 phi = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+                phi_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
                 for level in ti.static(range(self.n_levels)):
                     phi += ti.cast(self.phi[level, i], ti.f64) * self.level_scale[level]
-                w_phi = ti.cast(self.mp_W[i], ti.f64) * phi
-                self.D[i] += w_phi / (ti.f64(PI) * r * r)                # D form (algorithms.md §1.3)
+                    phi_odd += ti.cast(self.phi_odd[level, i], ti.f64) * self.level_scale[level]
+                w = ti.cast(self.mp_W[i], ti.f64)
+                w_phi = w * phi
+                inc = w_phi / (ti.f64(PI) * r * r)
+                inc_odd = w * phi_odd / (ti.f64(PI) * r * r)
+                self.D[i] += inc                                        # D form (algorithms.md §1.3)
                 self.tau[i] = (self.tau[i] + w_phi) * (r_new * r_new) / (r * r)   # tau form, kept for the test
                 self.N[i] = n_new
                 self.R[i] = r_new
+            estimate = lum.dot(self.ld_pass[i] + inc / n_p)
+            self.spread[i] = (estimate - self.estimate_last[i]) ** 2
+            self.estimate_last[i] = estimate
+            halves = lum.dot(2.0 * (inc - inc_odd) / n_p) - lum.dot(2.0 * inc_odd / n_p)
+            self.half_difference[i] = n_p * halves * halves / 4.0
             self.M[i] = 0
             for level in ti.static(range(self.n_levels)):
                 self.phi[level, i] = ti.Vector([0, 0, 0], ti.i64)
+                self.phi_odd[level, i] = ti.Vector([0, 0, 0], ti.i64)
+
+    @ti.kernel
+    def _effort_sums(self):
+        """Sums over pixels for the effort balance, in one fixed order (a serial loop), so
+        that the photon count it picks, and so the image, does not depend on thread timing."""
+        sums = ti.Vector([0.0] * 4, ti.f64)
+        ti.loop_config(serialize=True)
+        for i in range(self.n_pixels):
+            sums[0] += self.spread[i]
+            sums[1] += self.half_difference[i]
+            if self.mp_valid[i]:
+                r = ti.cast(self.mp_radius[i], ti.f64)
+                sums[2] += r * r
+                sums[3] += 1.0
+        for k in ti.static(range(4)):
+            self.effort_sums[k] = sums[k]
+        self.effort_sums[4] = ti.cast(self.counters[2], ti.f64)
+        self.effort_sums[5] = ti.cast(self.counters[3], ti.f64)
+        self.counters[2] = 0
+        self.counters[3] = 0
 
     # -- results ----------------------------------------------------------------------
     def image(self):
@@ -278,4 +356,6 @@ class Sppm(Method):
         return {"photons_per_iteration": self.photons_per_iteration, "photons_emitted": self.photons_emitted,
                 "fraction_of_photon_paths_depositing": float(c[0]) / max(self.photons_emitted, 1),
                 "mean_radius": float(r[seen].mean()) if seen.any() else None,
-                "alpha": self.alpha, "nonfinite_samples_dropped": int(c[1])}
+                "alpha": self.alpha, "nonfinite_samples_dropped": int(c[1]),
+                "effort": {"balanced": self.balanced and self.effort is not None,
+                           **(self.effort.stats() if self.effort is not None else {})}}

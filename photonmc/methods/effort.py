@@ -1,0 +1,109 @@
+"""Photons per pass from the error they remove and the work they cost (photon mapping's
+effort balance; docs/effort.md).
+
+An SPPM-family iteration is a camera pass (one path per pixel, its measurement points and
+their grid) and a photon pass of n photon paths. Per iteration a pixel's estimate has
+variance  V(n) = V_c + V_p / n:  V_c from the camera side (direct light, the jittered
+measurement point, the path to it), which more photons do not reduce, and V_p / n from the
+photons. Work per iteration is  C_c + n c_p.  At a fixed budget the error after the budget is
+proportional to (C_c + n c_p)(V_c + V_p / n), least at
+
+    n* = sqrt( (C_c / c_p) (V_p / V_c) ).
+
+V_p comes from splitting each pass's photons into two halves (even and odd photon paths,
+or chains for the guided methods) whose estimates share the measurement point: their
+difference has variance 4 V_p / n and no camera part. Two consecutive iterations are
+independent, so their estimates differ with variance 2 V_c + V_p (1/n_i + 1/n_j), which
+gives V_c (consecutive ones, because the expectation drifts as the radii shrink). Both are
+averaged over the last WINDOW iterations: V_p grows as the radii shrink. Both are means over
+pixels of luminance, so the balance minimises the image's MSE. Work is counted, not
+timed, so that a seed still gives one image: C_c in rays cast by the camera pass plus one
+per measurement point put in the grid, c_p in photon segments per path (each a ray cast
+and a gather).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+MAX_CHANGE = 2.0         # photons per pass change by at most this factor per iteration
+MAX_PER_PIXEL = 64       # at most this many photons per pixel per pass (iteration granularity)
+HISTORY = 256            # iterations the estimates look back over (bounded work per iteration)
+TRIM = 32                # V_c leaves out the largest 1/TRIM of its history
+
+
+class EffortBalance:
+    def __init__(self, n_pixels: int, initial: int, alpha: float):
+        self.n_pixels = n_pixels
+        self.photons = int(initial)
+        self.alpha = float(alpha)
+        self.camera_variances = []           # per-iteration V_c estimates
+        self.photon_variances_r2 = []        # per-iteration V_p x mean R^2 (V_p grows as 1/R^2)
+        self.radius_sq = None                # mean R^2 of the last pass
+        self.sum_camera_work = 0.0
+        self.sum_photon_work = 0.0           # photon segments
+        self.sum_photons = 0.0
+        self.samples = 0                     # iterations with a previous one to compare with
+        self.observed = 0                    # all iterations
+        self.last_photons = None
+
+    def observe(self, photons: int, spread: float, half_difference: float, radius_sq: float,
+                camera_work: float, photon_work: float) -> None:
+        """One iteration of `photons` photon paths: `spread` = mean over pixels of (this
+        iteration's estimate - the last one's)^2, `half_difference` = mean of n (t_a - t_b)^2 / 4,
+        `radius_sq` = mean squared gather radius of the pass."""
+        self.observed += 1
+        self.sum_camera_work += camera_work
+        self.sum_photon_work += photon_work
+        self.sum_photons += photons
+        last, self.last_photons = self.last_photons, photons
+        if last is None or not radius_sq > 0:
+            return
+        # Two iterations' estimates are independent: E[(e_i - e_j)^2] = 2 V_c + V_p (1/n_i + 1/n_j).
+        v_p = half_difference
+        self.camera_variances.append(0.5 * (spread - v_p * (1.0 / photons + 1.0 / last)))
+        self.photon_variances_r2.append(v_p * radius_sq)
+        del self.camera_variances[:-HISTORY], self.photon_variances_r2[:-HISTORY]
+        self.radius_sq = radius_sq
+        self.samples += 1
+
+    def shares(self) -> tuple[float, float] | None:
+        """(V_c, V_p at the current radii), or None before there is an estimate."""
+        if self.samples == 0:
+            return None
+        # V_c: the mean of the history without its largest 1/32. One camera path that finds
+        # the lamp through glass makes one iteration's spread ~100x the others' (bundled
+        # caustic), and a plain mean would let that one event steer the rest of the render.
+        # V_p: a plain mean, since where photons are scarce most passes see none and the
+        # signal is in the rare passes that do (a median or trimmed mean would be 0 there).
+        camera = np.sort(np.asarray(self.camera_variances))
+        keep = len(camera) - len(camera) // TRIM
+        return float(camera[:keep].mean()), float(np.mean(self.photon_variances_r2)) / self.radius_sq
+
+    def next_photons(self) -> int:
+        shares = self.shares()
+        if shares is None or self.sum_photons <= 0:
+            return self.photons
+        v_c, v_p = shares
+        camera_work = self.sum_camera_work / self.observed
+        photon_work = self.sum_photon_work / self.sum_photons
+        if v_p <= 0.0 or photon_work <= 0.0:
+            # No photon has reached a measurement point yet: that says the photons are scarce,
+            # not useless, and fewer would only make it rarer. Hold until one does.
+            target = self.photons
+        elif v_c <= 0.0:
+            target = self.photons * MAX_CHANGE           # no camera-side error measured yet
+        else:
+            target = math.sqrt(self.alpha * camera_work / photon_work * v_p / v_c)
+        target = min(max(target, self.photons / MAX_CHANGE), self.photons * MAX_CHANGE)
+        self.photons = int(min(max(round(target), 1), MAX_PER_PIXEL * self.n_pixels, 1 << 28))
+        return self.photons
+
+    def stats(self) -> dict:
+        shares = self.shares()
+        return {"photons_next_pass": self.photons,
+                "camera_variance": shares[0] if shares else None,
+                "photon_variance_per_photon": shares[1] if shares else None,
+                "camera_work_per_pass": self.sum_camera_work / self.observed if self.observed else None,
+                "segments_per_photon": self.sum_photon_work / self.sum_photons if self.sum_photons else None}
