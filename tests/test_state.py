@@ -54,6 +54,20 @@ def test_resume_equals_straight_bit_for_bit(method, tmp_path):
     assert not np.array_equal(half.image, straight.image)
 
 
+def test_resume_of_balanced_sppm_equals_straight(tmp_path):
+    """--photons auto: the effort balance's history is part of the state, so the resumed
+    render picks the same photon counts and gives the same image."""
+    j = Job(scene=CORNELL, params=SMALL, method="sppm", seed=3, options={"photons": "auto"})
+    straight = rendered(j, 12)
+    [half] = state.load(state.save(tmp_path / "auto.state", [rendered(j, 6)]))
+    p, _ = resume(half)
+    for _ in range(6):
+        p.method.iterate()
+    assert np.array_equal(p.method.image(), straight.image)
+    assert p.method.photons_per_iteration == straight.plain["photons_per_iteration"]
+    p.release()
+
+
 def test_a_state_that_misses_part_of_the_method_does_not_resume_straight(monkeypatch, tmp_path):
     """The check above can fail: leave the chain pool out of visibility's state and the
     resumed image differs."""
