@@ -21,6 +21,7 @@ sys.path.insert(0, str(REPO))
 from photonmc.imageio import read_image  # noqa: E402
 from photonmc.loop import Job  # noqa: E402
 from photonmc.merge import merged_image, worker_seed  # noqa: E402
+from photonmc.metrics import rmse  # noqa: E402
 from photonmc.state import state_of  # noqa: E402
 
 REFERENCES = {"cornell-box": ("cornell-box-64.exr", {"res": "64"}),
@@ -58,8 +59,7 @@ def main():
         single = render(scene, params, method, 0, k * n).image
         row = []
         for img in (merged, single):
-            rmse = float(np.sqrt(np.mean((img - ref) ** 2)))
-            row += [f"{rmse:.5f}", f"{(img.mean() / ref.mean() - 1) * 100:+.2f} %"]
+            row += [f"{rmse(img, ref):.5f}", f"{(img.mean() / ref.mean() - 1) * 100:+.2f} %"]
         print(f"| {method} | " + " | ".join(row) + " |", flush=True)
 
 
