@@ -9,7 +9,8 @@ import taichi as ti
 from scipy import stats as sps
 
 from photonmc.kernels.fields import FieldGroup
-from photonmc.kernels.mcmc import (ACCEPTED, DEPOSIT, MUTATIONS, THETA_MAX, THETA_MIN, ChainPool, adapt_theta)
+from photonmc.kernels.mcmc import (ACCEPTED, DEPOSIT, MUTATIONS, SEEDED_RESAMPLED, THETA_MAX, THETA_MIN, ChainPool,
+                                   adapt_theta)
 
 BINS = 8
 GROUPS = 32
@@ -42,17 +43,18 @@ def support_np(x, y, kind):
     return (((x < 0.5) & (y < 0.5)) | ((x >= 0.5) & (0.2 <= y) & (y < 0.25))).astype(float)
 
 
-def targets_np(x, y, kind, levels):
+def targets_np(x, y, kind, levels, shift=0):
     v = support_np(x, y, kind)
-    return [v, v * (0.1 + x), v * (0.05 + x * y * 4.0)][:levels]
+    return [v, v * (0.1 + x), v * (0.05 + x * y * 4.0)][shift:shift + levels]
 
 
 @ti.data_oriented
 class ToyModel:
     """Targets: V (the support), V (0.1 + x), V (0.05 + 4xy); deposits into per-group histograms."""
 
-    def __init__(self, levels, chains, kind="strip"):
-        self.levels, self.kind_id = levels, KINDS[kind]
+    def __init__(self, levels, chains, kind="strip", shift=0):
+        # shift 1: the levels are T1, T2 (a level 0 that is not binary)
+        self.levels, self.kind_id, self.shift = levels, KINDS[kind], shift
         self.chains = chains
         f = FieldGroup("toy-model")
         self.hist = f.scalar(ti.f64, (levels, GROUPS, BINS, BINS))
@@ -67,7 +69,7 @@ class ToyModel:
         full = ti.Vector([v, v * (0.1 + x), v * (0.05 + x * y * 4.0)])
         out = ti.Vector([0.0] * self.levels)
         for k in ti.static(range(self.levels)):
-            out[k] = full[k]
+            out[k] = full[k + self.shift]
         if mode == DEPOSIT:
             g = vkey % GROUPS
             bx = ti.min(ti.cast(x * BINS, ti.i32), BINS - 1)
@@ -77,20 +79,22 @@ class ToyModel:
         return out, 2
 
 
-def exact_bins(kind, levels):
+def exact_bins(kind, levels, shift=0):
     c = (np.arange(FINE) + 0.5) / FINE
     x, y = np.meshgrid(c, c, indexing="ij")
     out = []
-    for t in targets_np(x, y, kind, levels):
+    for t in targets_np(x, y, kind, levels, shift):
         b = t.reshape(BINS, FINE // BINS, BINS, FINE // BINS).sum(axis=(1, 3)) / FINE**2
         out.append(b)
     return out          # per level: integral of T over each bin
 
 
 def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="strip", drop=False, ev=False,
-            adapt=True, theta=None, seed=3, target_acceptance=0.234, burn_in=0.0):
-    model = ToyModel(levels, chains, kind)
-    pool = ChainPool(chains, levels, 2, drop_failures=drop, expected_values=ev, burn_in=burn_in)
+            adapt=True, theta=None, seed=3, target_acceptance=0.234, burn_in=0.0, seeding="copy", bootstrap=0.125,
+            shift=0):
+    model = ToyModel(levels, chains, kind, shift)
+    pool = ChainPool(chains, levels, 2, drop_failures=drop, expected_values=ev, burn_in=burn_in,
+                     binary_base=shift == 0, seeding=seeding, bootstrap=bootstrap)
     if theta is not None:
         pool.theta.fill(theta)
     b_sum = np.zeros(levels)
@@ -171,6 +175,43 @@ def test_burn_in_removes_the_ladders_start_up_bias():
     assert all(chi2 > limit for chi2, _ in recorded_from_start[1:])
     assert level0_short > limit
     assert all(chi2 < limit for chi2, _ in burnt_in + burnt_in_ev)
+
+
+def test_resampled_starts_replace_most_of_the_burn_in():
+    """seeding='resample': each upper level starts from one of the bootstrap's uniform proposals
+    (the first eighth of the pass) drawn in proportion to its target, instead of a copy of the
+    level below. 160 steps per ladder and pass: copies recorded from the start are rejected
+    (measured chi-square 76 and 78 on 20 bins, limit 45), resampled starts pass (25, 29) while
+    discarding 1/8 of the upper levels' steps, not half."""
+    exact = exact_bins("strip", 3)
+    limit = sps.chi2.ppf(0.999, int((exact[0] > 0).sum()))
+
+    def chi2s(**kw):
+        hist, b, last, _ = run_toy(3, passes=8, steps_per_chain=160, **kw)
+        return [chi_square(hist[level], exact[level])[0] for level in range(3)], b, last["counters"]
+
+    copied, _, _ = chi2s()
+    resampled, b, counters = chi2s(seeding="resample")
+    print("chi2 copied", copied, "resampled", resampled)
+    assert max(copied[1:]) > limit
+    assert max(resampled) < limit
+    np.testing.assert_allclose(b, [e.sum() for e in exact], rtol=0.01)
+    assert counters[1:, SEEDED_RESAMPLED].sum() > 0
+
+
+def test_a_level_0_target_that_is_not_binary():
+    """Level 0 with T = V (0.1 + x): independence Metropolis-Hastings for the uniform proposals,
+    a mutation every step, a resampled start; both levels sample their targets and b_0 is the
+    mean target of the uniform proposals."""
+    hist, b, _, _ = run_toy(2, shift=1, passes=4, steps_per_chain=256, seeding="resample")
+    exact = exact_bins("strip", 2, shift=1)
+    for level in range(2):
+        chi2, dof = chi_square(hist[level], exact[level])
+        print(f"level {level}: chi2 {chi2:.1f} on {dof} bins")
+        assert chi2 < sps.chi2.ppf(0.999, dof)
+    np.testing.assert_allclose(b, [e.sum() for e in exact], rtol=0.01)
+    with pytest.raises(ValueError, match="not binary"):
+        ChainPool(4, 2, 2, binary_base=False)
 
 
 def test_adaptation_reaches_the_target_acceptance():

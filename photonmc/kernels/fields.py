@@ -21,7 +21,7 @@ import numpy as np
 import taichi as ti
 
 _NP_DTYPES = {ti.f32: np.float32, ti.f64: np.float64, ti.i32: np.int32, ti.i64: np.int64}
-_BYTES = {ti.f32: 4, ti.f64: 8, ti.i32: 4, ti.i64: 8}
+_BYTES = {ti.f32: 4, ti.f64: 8, ti.i32: 4, ti.i64: 8, ti.u32: 4}
 POOL_MAX_GROUPS = 24
 POOL_MAX_BYTES = 1 << 31
 

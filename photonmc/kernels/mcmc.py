@@ -3,11 +3,24 @@ toy-target tests (algorithms.md §2, §3, §5).
 
 A pool runs `n_chains` independent ladders in parallel (one CPU thread per ladder at a time),
 each ladder holding `n_levels` replicas:
-  * level 0 targets the binary visibility V(u). Each step first draws a uniform proposal (the
-    exchange with an implicit uniform chain, H&J 2011); a visible one replaces the state,
-    otherwise the state is mutated;
+  * level 0 starts each step with a uniform proposal (the exchange with an implicit uniform
+    chain, H&J 2011). For a binary target (visibility, `binary_base`) a visible one always
+    replaces the state and the state is mutated only otherwise (H&J's loop: whether it mutates
+    does not depend on the current state, so the loop keeps the target). For any other
+    non-negative target the uniform proposal is an independence Metropolis-Hastings move,
+    accepted with min(1, T(u')/T(u)), and a mutation follows every time;
   * levels 1.. run Metropolis-Hastings on their own targets, and neighbouring levels exchange
     states (replica exchange, Gruson et al. 2016).
+Every level's support must lie inside the one below (normalisations, `normalisations`).
+
+Start of a pass (the targets changed, so every stored state is stale). A binary level 0 is
+exact from its first visible uniform proposal: that proposal is an exact draw from V/b_V.
+Any other level needs a start: `seeding="copy"` copies the state of the level below (then
+the ladder burns in, `burn_in`); `seeding="resample"` runs a bootstrap over the first
+`bootstrap` fraction of the ladder's steps, in which each level keeps one of the uniform
+proposals with probability proportional to its target (weighted reservoir sampling, the
+classic MLT bootstrap), and starts from it. A resampled start is exact as the bootstrap
+grows; its bias at production lengths is measured in docs/guiding.md.
 Replicas live in slots; the ladder's level->slot table is what an exchange permutes.
 
 Slot state: u[slot, :] is the whole primary sample vector (ell = 0 marks an empty slot,
@@ -35,8 +48,10 @@ from . import rng
 from .fields import FieldGroup
 
 # Per-level counters (int64, atomics, so they are exact and order-independent).
-MUTATIONS, ACCEPTED, UNIFORM, UNIFORM_VISIBLE, SWAPS_TRIED, SWAPS_ACCEPTED, FAILURES, FAILURES_DROPPED = range(8)
-N_COUNTERS = 8
+(MUTATIONS, ACCEPTED, UNIFORM, UNIFORM_VISIBLE, SWAPS_TRIED, SWAPS_ACCEPTED, FAILURES, FAILURES_DROPPED,
+ SEEDED_RESAMPLED, SEEDED_COPIED) = range(10)
+N_COUNTERS = 10
+SEEDINGS = ("copy", "resample")
 
 THETA_MIN, THETA_MAX = 1e-4, 1.0        # clamps of the mutation-size parameter
 THETA_START = 0.5
@@ -113,11 +128,22 @@ def adapt_theta(theta: float, acceptance: float, target: float, k: int) -> float
 @ti.data_oriented
 class ChainPool:
     def __init__(self, n_chains: int, n_levels: int, dims: int, drop_failures: bool = False,
-                 expected_values: bool = False, burn_in: float = 0.0):
+                 expected_values: bool = False, burn_in: float = 0.0, binary_base: bool = True,
+                 seeding: str = "copy", bootstrap: float = 0.125):
         self.n_chains, self.n_levels, self.dims = n_chains, n_levels, dims
         if not 0.0 <= burn_in < 1.0:
             raise ValueError(f"burn_in is a fraction of each pass in [0, 1), got {burn_in}")
+        if seeding not in SEEDINGS:
+            raise ValueError(f"seeding must be one of {SEEDINGS}, got {seeding!r}")
+        if not binary_base and (seeding != "resample" or expected_values):
+            raise ValueError("a level 0 that is not binary has no exact start (it needs seeding='resample') "
+                             "and no expected-value records")
+        if not 0.0 < bootstrap < 1.0:
+            raise ValueError(f"bootstrap is a fraction of each pass in (0, 1), got {bootstrap}")
         self.burn_in = float(burn_in)
+        self.binary_base = bool(binary_base)
+        self.resample = seeding == "resample"
+        self.bootstrap = float(bootstrap) if self.resample else 0.0
         self.n_slots = n_chains * n_levels
         self.drop_failures = bool(drop_failures)
         self.expected_values = bool(expected_values)
@@ -136,6 +162,12 @@ class ChainPool:
         self.ratio = f.scalar(ti.f64, (n_chains, n_levels))
         self.uniform_T = f.scalar(ti.f64, (n_chains, n_levels))   # sum of T_l over uniform proposals
         self.recording = f.scalar(ti.i32, n_chains)      # 0 while the ladder burns in (see run)
+        self.seeding_phase = f.scalar(ti.i32, n_chains)  # 1 while the ladder's bootstrap runs (resample)
+        # Weighted reservoirs of the bootstrap, per ladder and level: the kept uniform
+        # proposal's key, its targets, and the running sum of the level's target.
+        self.reservoir_key = f.scalar(ti.u32, (n_chains, n_levels))
+        self.reservoir_T = f.vector(n_levels, ti.f32, (n_chains, n_levels))
+        self.reservoir_sum = f.scalar(ti.f64, (n_chains, n_levels))
         f.finalize()
         self.fields = f
         self.source = _ChainSource(self)
@@ -164,7 +196,7 @@ class ChainPool:
         light-gap, docs/guiding.md). So a pass records level 0 only from its first visible
         uniform proposal on (an exact draw from the new target, after which Metropolis keeps
         the chain exact), and a higher level only once seeded from a fresh level below."""
-        for fld in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T):
+        for fld in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.reservoir_sum):
             fld.fill(0)
         self._visit_states(model, PROBE)
 
@@ -178,7 +210,7 @@ class ChainPool:
         spatial-tf by -3.4 % on the gap-lit room at 32x32 (256 steps per ladder and pass),
         +0.2 % with the first half discarded (docs/guiding.md). Level 0 alone (visibility)
         is exact from its first visible uniform proposal and needs none."""
-        self._run(model, seed, iteration, steps, self.burn_in)
+        self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap)
         self._visit_states(model, DEPOSIT)
 
     def tallies(self) -> dict:
@@ -196,7 +228,9 @@ class ChainPool:
         (valid because every level's support lies inside the one below, algorithms.md §3.6)."""
         c = tallies["counters"]
         b = np.zeros(self.n_levels)
-        b[0] = c[0, UNIFORM_VISIBLE] / max(c[0, UNIFORM], 1)
+        # Binary: the visible fraction, counted exactly; otherwise the mean target of the
+        # uniform proposals (the same number for a 0/1 target).
+        b[0] = c[0, UNIFORM_VISIBLE] / max(c[0, UNIFORM], 1) if self.binary_base else tallies["uniform_mean"][0]
         for level in range(1, self.n_levels):
             b[level] = b[level - 1] * tallies["mean_ratio"][level - 1]
         return b
@@ -214,7 +248,8 @@ class ChainPool:
 
     # -- kernels ------------------------------------------------------------------------
     @ti.kernel
-    def _run(self, model: ti.template(), seed: ti.u32, iteration: ti.u32, steps: ti.i32, burn_in: ti.f32):
+    def _run(self, model: ti.template(), seed: ti.u32, iteration: ti.u32, steps: ti.i32, burn_in: ti.f32,
+             bootstrap: ti.f32):
         base = steps // self.n_chains
         extra = steps % self.n_chains
         for item in range(self.n_chains * ti.static(self.stride)):
@@ -223,7 +258,12 @@ class ChainPool:
                 state = rng.seed(seed, ti.u32(c), iteration * ti.u32(2) + ti.u32(1))
                 n = base + (1 if c < extra else 0)
                 burn = ti.cast(burn_in * n, ti.i32)
+                seeding_steps = ti.max(ti.cast(bootstrap * n, ti.i32), 1) if ti.static(self.resample) else 0
                 for i in range(n):
+                    if ti.static(self.resample):
+                        if i == seeding_steps:
+                            self._seed_from_reservoirs(c)
+                        self.seeding_phase[c] = 1 if i < seeding_steps else 0
                     self.recording[c] = 1 if i >= burn else 0
                     self._step(model, c, state)
 
@@ -265,8 +305,8 @@ class ChainPool:
         for move in range(self.n_levels + 1):
             level = ti.max(move - 1, 0)
             s = self.level_slot[c, level]
-            if move == 1 and uniform_visible:
-                continue
+            if ti.static(self.binary_base) and move == 1 and uniform_visible:
+                continue          # H&J's loop: mutate only when the uniform proposal was invisible
             if move > 0 and not self.fresh[s]:
                 continue          # a stale state is not recorded, so mutating it is wasted work
             mode = MUTATION_MODE
@@ -295,8 +335,11 @@ class ChainPool:
                         accept, a = self._decide(c, level, move, s, t_new, state)
                         if move == 0:
                             uniform_visible = accept
-                            if accept:
-                                self.fresh[s] = 1
+                            if ti.static(self.binary_base) and accept:
+                                self.fresh[s] = 1     # an exact draw from V / b_V
+                            if ti.static(self.resample):
+                                if self.seeding_phase[c]:
+                                    self._offer_to_reservoirs(c, key[1], t_new, state)
                         if accept:
                             deposit_key = ti.math.uvec4(s, 0, 0, STATE_MODE)
                             deposit_w = self.pending[s]
@@ -313,7 +356,10 @@ class ChainPool:
                 if ti.static(self.expected_values) and move > 0:
                     w_new = a
                 self._record(c, level, s, w_new)
-            elif move > 0 and not (ti.static(self.drop_failures) and component(t_new, level) <= 0.0):
+            elif (move > 0 or ti.static(not self.binary_base)) and \
+                    not (ti.static(self.drop_failures) and component(t_new, level) <= 0.0):
+                # A rejected proposal repeats the current state. (A binary level 0 that rejects
+                # its uniform proposal records after the mutation that always follows.)
                 if ti.static(not self.expected_values) and component(self.T[s], level) > 0.0:
                     self._record(c, level, s, 1.0)
         for level in ti.static(range(self.n_levels - 1)):
@@ -332,8 +378,16 @@ class ChainPool:
                 self.uniform_T[c, k] += ti.cast(t_new[k], ti.f64)
             if t_new[0] > 0.0:
                 ti.atomic_add(self.counters[0, UNIFORM_VISIBLE], 1)
-                accept = 1
                 a = 1.0
+                if ti.static(not self.binary_base):
+                    # Independence Metropolis-Hastings (the uniform proposal density cancels).
+                    t_cur0 = component(self.T[s], 0)
+                    if t_cur0 > 0.0:
+                        a = ti.min(1.0, t_new[0] / t_cur0)
+                if ti.static(self.binary_base):
+                    accept = 1
+                elif rng.next_float(state) < a:
+                    accept = 1
         else:
             ti.atomic_add(self.counters[level, MUTATIONS], 1)
             t_cur = component(self.T[s], level)
@@ -372,15 +426,48 @@ class ChainPool:
                 swap = 1
 
         if self.fresh[sa] and not self.fresh[sb]:
-            # Seed the upper level with a copy of the lower one's state (no exchange is counted).
-            if ta[hi] > 0.0:
+            # Seed the upper level with a copy of the lower one's state (no exchange is
+            # counted); with resampling only where its bootstrap found nothing for it.
+            seed_by_copy = ta[hi] > 0.0
+            if ti.static(self.resample):
+                seed_by_copy = seed_by_copy and not self.seeding_phase[c]
+            if seed_by_copy:
                 self._copy(sa, sb)
-        elif self.fresh[sa]:
+                ti.atomic_add(self.counters[hi, SEEDED_COPIED], 1)
+        elif self.fresh[sa] and self.fresh[sb]:
             ti.atomic_add(self.counters[lo, SWAPS_TRIED], 1)
             if swap:
                 ti.atomic_add(self.counters[lo, SWAPS_ACCEPTED], 1)
                 self.level_slot[c, lo] = sb
                 self.level_slot[c, hi] = sa
+
+    @ti.func
+    def _offer_to_reservoirs(self, c, proposal_key: ti.u32, t_new, state: ti.template()):
+        """Bootstrap: each level that needs a start keeps this uniform proposal with probability
+        T_l(u) / (sum of T_l over the proposals so far), so that the kept one is drawn in
+        proportion to T_l among them."""
+        for level in ti.static(range(self.n_levels)):
+            if ti.static(level > 0 or not self.binary_base):
+                t = t_new[level]
+                if t > 0.0:
+                    total = self.reservoir_sum[c, level] + ti.cast(t, ti.f64)
+                    self.reservoir_sum[c, level] = total
+                    if rng.next_float(state) * total < t:
+                        self.reservoir_key[c, level] = proposal_key
+                        self.reservoir_T[c, level] = t_new
+
+    @ti.func
+    def _seed_from_reservoirs(self, c):
+        """End of the bootstrap: every level that is not yet exact starts from its reservoir's
+        proposal (stale slots hold nothing pending, so nothing is lost)."""
+        for level in ti.static(range(self.n_levels)):
+            if ti.static(level > 0 or not self.binary_base):
+                s = self.level_slot[c, level]
+                if not self.fresh[s] and self.reservoir_sum[c, level] > 0.0:
+                    self._store(s, ti.math.uvec4(s, self.reservoir_key[c, level], level, UNIFORM_MODE),
+                                self.reservoir_T[c, level])
+                    self.fresh[s] = 1
+                    ti.atomic_add(self.counters[level, SEEDED_RESAMPLED], 1)
 
     @ti.func
     def _copy(self, src, dst):
@@ -402,7 +489,7 @@ class ChainPool:
     def _record(self, c, level, s, w):
         """The state in slot s is a sample of `level` with weight w (deposited later); nothing
         while the ladder burns in."""
-        if self.recording[c]:
+        if self.recording[c] and self.fresh[s]:
             self._tally(c, level, self.T[s], w)
             p = self.pending[s]
             for k in ti.static(range(self.n_levels)):

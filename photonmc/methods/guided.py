@@ -30,6 +30,7 @@ from ..kernels.mcmc import (
     FAILURES,
     FAILURES_DROPPED,
     MUTATIONS,
+    N_COUNTERS,
     PROBE,
     SWAPS_ACCEPTED,
     SWAPS_TRIED,
@@ -122,7 +123,7 @@ class GuidedPhotons(Sppm):
         self.b_mis.fill(1.0)
         self.paths_traced[None] = 0
         L = self.n_levels
-        self.totals = np.zeros((L, 8), np.int64)
+        self.totals = np.zeros((L, N_COUNTERS), np.int64)
         self.b_last = np.zeros(L)
         self.last_steps = self.photons_per_iteration
         self.b_sum = np.zeros(L)
