@@ -74,11 +74,11 @@ def _camera_state(pos: ti.template(), nrm: ti.template(), delta: ti.template(), 
 def technique_weights(pos: ti.types.ndarray(dtype=vec3, ndim=1), nrm: ti.types.ndarray(dtype=vec3, ndim=1),
                       delta: ti.types.ndarray(dtype=ti.i32, ndim=1), prob: ti.types.ndarray(dtype=ti.f32, ndim=1),
                       q: ti.types.ndarray(dtype=ti.f32, ndim=1), k: ti.i32, direct_pdf_a: ti.f32,
-                      camera_pdf_w: ti.f32, vm_weight: ti.f32, vc_weight: ti.f32, n_light: ti.f32,
+                      camera_pdf_w: ti.f32, vm_weight: ti.f32, vc_weight: ti.f32, n_light: ti.f32, camera_only: ti.f32,
                       w_conn: ti.types.ndarray(dtype=ti.f32, ndim=1), w_merge: ti.types.ndarray(dtype=ti.f32, ndim=1)):
     """w_conn[s]: s = 0 emitter hit, 1 next-event estimation, 2..k-1 connections, k light
     tracing; w_merge[s]: merging at x_s. -1 where the technique cannot make the path."""
-    c = vcm_mis.MisConstants(vm_weight=vm_weight, vc_weight=vc_weight, n_light=n_light)
+    c = vcm_mis.MisConstants(vm_weight=vm_weight, vc_weight=vc_weight, n_light=n_light, camera_only=camera_only)
     ti.loop_config(serialize=True)
     for _ in range(1):
         for s in range(MAX_K + 1):
@@ -88,7 +88,7 @@ def technique_weights(pos: ti.types.ndarray(dtype=vec3, ndim=1), nrm: ti.types.n
         cam0 = _camera_state(pos, nrm, delta, prob, q, k, 0, camera_pdf_w, c)
         w_conn[0] = 1.0
         if k > 1:
-            w_conn[0] = vcm_mis.emitter_hit_weight(cam0, direct_pdf_a, direct_pdf_a * _cos(pos, nrm, 0, 1) / math.pi, True)
+            w_conn[0] = vcm_mis.emitter_hit_weight(cam0, direct_pdf_a, direct_pdf_a * _cos(pos, nrm, 0, 1) / math.pi, True, c)
         # s = 1: next-event estimation from x_1.
         if k > 1 and not delta[1]:
             cam = _camera_state(pos, nrm, delta, prob, q, k, 1, camera_pdf_w, c)
@@ -139,11 +139,13 @@ def random_path(rng, k, delta_fraction):
     return pos, nrm, delta, prob, q
 
 
-def whole_path_weights(pos, nrm, delta, prob, q, k, direct_pdf_a, camera_pdf_w, n_light, eta, vc, vm):
+def whole_path_weights(pos, nrm, delta, prob, q, k, direct_pdf_a, camera_pdf_w, n_light, eta, vc, vm, camera_only=1.0):
     """Balance heuristic n_t p_t / sum_j n_j p_j from area pdfs (docs/vcm.md). A delta vertex's
     density is its lobe probability per solid angle times a delta that every technique sampling
     through the vertex shares, so it cancels (a mirror's delta is symmetric in solid angle; the
-    refraction Jacobian is left out, as in SmallVCM, which keeps the weights summing to one)."""
+    refraction Jacobian is left out, as in SmallVCM, which keeps the weights summing to one).
+    camera_only: the relative sample count of the two techniques that need no light subpath
+    (emitter hits, next-event estimation); mbe's modified weights set it to b_V."""
     def cos(i, j):
         w = pos[j] - pos[i]
         return abs(w @ nrm[i]) / np.linalg.norm(w)
@@ -167,11 +169,11 @@ def whole_path_weights(pos, nrm, delta, prob, q, k, direct_pdf_a, camera_pdf_w, 
 
     def p_conn(s):                  # light vertices x_0..x_{s-1}, camera x_s..x_k
         return np.prod(fwd[:s]) * np.prod(bwd[s:k])
-    conn[0] = p_conn(0)
+    conn[0] = camera_only * p_conn(0)
     if k > 1:
         for s in range(1, k):
             if vc and not delta[s - 1] and not delta[s]:
-                conn[s] = p_conn(s)
+                conn[s] = p_conn(s) * (camera_only if s == 1 else 1.0)
         if vc and not delta[k - 1]:
             conn[k] = n_light * np.prod(fwd[:k])
         if vm:
@@ -188,10 +190,12 @@ def whole_path_weights(pos, nrm, delta, prob, q, k, direct_pdf_a, camera_pdf_w, 
     return {s: p / total for s, p in conn.items()}, {s: p / total for s, p in merge.items()}
 
 
-@pytest.mark.parametrize("techniques", ["vcm", "bpt", "bpm"])
+@pytest.mark.parametrize("techniques", ["vcm", "bpt", "bpm", "mbe-modified"])
 @pytest.mark.parametrize("delta_fraction", [0.0, 0.4])
 def test_weights_sum_to_one_and_equal_the_balance_heuristic(techniques, delta_fraction):
-    vc, vm = {"vcm": (True, True), "bpt": (True, False), "bpm": (False, True)}[techniques]
+    """mbe-modified: all of VCM's techniques with the camera-only ones counted b_V times
+    (b_V drawn over [1e-4, 1]), the weights mbe uses by default."""
+    vc, vm = {"vcm": (True, True), "bpt": (True, False), "bpm": (False, True), "mbe-modified": (True, True)}[techniques]
     rng = np.random.default_rng(7 + int(10 * delta_fraction))
     w_conn = np.zeros(MAX_K + 1, np.float32)
     w_merge = np.zeros(MAX_K + 1, np.float32)
@@ -204,11 +208,12 @@ def test_weights_sum_to_one_and_equal_the_balance_heuristic(techniques, delta_fr
         n_light = float(rng.choice([1, 64, 4096]))
         radius = float(rng.uniform(1e-3, 0.1))
         eta = math.pi * radius ** 2 * n_light
+        kappa = float(10 ** rng.uniform(-4, 0)) if techniques == "mbe-modified" else 1.0
         technique_weights(pos.astype(np.float32), nrm.astype(np.float32), delta, prob.astype(np.float32),
                           q.astype(np.float32), k, direct_pdf_a, camera_pdf_w, eta if vm else 0.0,
-                          1.0 / eta if vc else 0.0, n_light, w_conn, w_merge)
+                          1.0 / eta if vc else 0.0, n_light, kappa, w_conn, w_merge)
         want_conn, want_merge = whole_path_weights(pos, nrm, delta, prob, q, k, direct_pdf_a, camera_pdf_w, n_light,
-                                                   eta, vc, vm)
+                                                   eta, vc, vm, kappa)
         got = {("c", s): float(w_conn[s]) for s in want_conn}
         got.update({("m", s): float(w_merge[s]) for s in want_merge})
         want = {("c", s): w for s, w in want_conn.items()}

@@ -25,6 +25,9 @@ from .sampling import onb, to_local, to_world
 LIGHT_DIMS = 5
 BOUNCE_DIMS = 4
 MAX_PHOTON_SEGMENTS = 64      # cap for scenes with unbounded max_depth (Russian roulette ends paths first)
+# A photon (light vertex) counts at a measurement point (camera vertex) only where their
+# surfaces face alike: the photon's normal within ~84 degrees of the point's (mitsuba #145).
+NORMAL_COS_MIN = 0.1
 
 
 def dimensions(max_segments: int) -> int:

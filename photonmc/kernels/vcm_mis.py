@@ -10,16 +10,23 @@ writes the recursion out, with the sample counts and the measure of every pdf.
 Conventions: every pdf includes the choice of the light and the Russian-roulette
 continuation of the vertex it is sampled at (a property of the material alone,
 `bsdf.continuation`); directional pdfs are per solid angle (`_w`), positional ones per area
-(`_a`); cosines are with the shading normal. `MisConstants` are fixed for one iteration:
-vm_weight = eta = pi r^2 N_L (0 without merging), vc_weight = 1/eta (0 without connections),
-n_light = N_L light subpaths.
+(`_a`); cosines are with the shading normal. `MisConstants` are fixed for one iteration and
+count every technique's samples relative to the connections' (one light subpath per camera
+subpath in VCM): vm_weight = eta = pi r^2 N_L (0 without merging), vc_weight = 1/eta (0
+without connections), n_light = N_L light subpaths (light tracing), camera_only = kappa, the
+relative count of the two techniques that need no light subpath (emitter hits and next-event
+estimation): 1 in VCM. mbe sets kappa = b_V, the chains' visible fraction: its light subpaths
+have density 1/b_V on their support, which is the same as dividing every light-dependent
+pdf by b_V (the "modified weights" of Sik et al. 2016, docs/mbe.md). kappa enters at the
+light subpath's start (the terms there end in the camera-only techniques) and in the
+camera-only techniques' own weights.
 """
 import taichi as ti
 
 from .sampling import vec3
 
 SubpathMis = ti.types.struct(dvcm=ti.f32, dvc=ti.f32, dvm=ti.f32)
-MisConstants = ti.types.struct(vm_weight=ti.f32, vc_weight=ti.f32, n_light=ti.f32)
+MisConstants = ti.types.struct(vm_weight=ti.f32, vc_weight=ti.f32, n_light=ti.f32, camera_only=ti.f32)
 # A vertex of a light or camera subpath: where it is, how it is lit or seen, what it carries.
 PathVertex = ti.types.struct(p=vec3, ng=vec3, n=vec3, wo=vec3, beta=vec3, length=ti.i32, bsdf=ti.i32,
                              dvcm=ti.f32, dvc=ti.f32, dvm=ti.f32)
@@ -44,8 +51,10 @@ def _safe_weight(w_light: ti.f32, w_camera: ti.f32) -> ti.f32:
 
 @ti.func
 def light_start(direct_pdf_a: ti.f32, emission_pdf_w: ti.f32, cos_light: ti.f32, c):
-    """Partial sums at the start of a light subpath (tech. report eqs. 31-33)."""
-    m = SubpathMis(dvcm=direct_pdf_a / emission_pdf_w, dvc=cos_light / emission_pdf_w, dvm=0.0)
+    """Partial sums at the start of a light subpath (tech. report eqs. 31-33), the camera-only
+    techniques they lead to counted kappa times."""
+    m = SubpathMis(dvcm=c.camera_only * direct_pdf_a / emission_pdf_w, dvc=c.camera_only * cos_light / emission_pdf_w,
+                   dvm=0.0)
     m.dvm = m.dvc * c.vc_weight
     return m
 
@@ -84,12 +93,13 @@ def after_scatter(m: ti.template(), delta: ti.i32, cos_out: ti.f32, pdf_fwd_w: t
 
 
 @ti.func
-def emitter_hit_weight(m, direct_pdf_a: ti.f32, emission_pdf_w: ti.f32, with_light_paths: ti.template()) -> ti.f32:
+def emitter_hit_weight(m, direct_pdf_a: ti.f32, emission_pdf_w: ti.f32, with_light_paths: ti.template(),
+                       c) -> ti.f32:
     """A camera subpath that hit an emitter, against next-event estimation (direct_pdf_a) and
     the light-subpath techniques (emission_pdf_w), when those exist."""
     w_camera = direct_pdf_a * m.dvcm
     if ti.static(with_light_paths):
-        w_camera += emission_pdf_w * m.dvc
+        w_camera += emission_pdf_w * m.dvc / c.camera_only
     return _safe_weight(0.0, w_camera)
 
 
@@ -102,7 +112,7 @@ def next_event_weight(m, direct_pdf_w: ti.f32, emission_pdf_w: ti.f32, cos_light
     w_camera = 0.0
     if ti.static(with_light_paths):
         w_camera = (emission_pdf_w * ti.abs(cos_to_light) / (direct_pdf_w * cos_light)) * \
-            (c.vm_weight + m.dvcm + m.dvc * bsdf_rev_w)
+            (c.vm_weight + m.dvcm + m.dvc * bsdf_rev_w) / c.camera_only
     return _safe_weight(w_light, w_camera)
 
 

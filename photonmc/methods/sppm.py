@@ -30,7 +30,7 @@ from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.direct import next_event
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import HashGrid
-from ..kernels.photon import MAX_PHOTON_SEGMENTS, photon_segments, trace_photon
+from ..kernels.photon import MAX_PHOTON_SEGMENTS, NORMAL_COS_MIN, photon_segments, trace_photon
 from ..kernels.sampling import onb, to_local, vec3
 from .base import Method
 from .effort import EffortBalance
@@ -39,7 +39,6 @@ FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flu
 PI = math.pi                      # use as ti.f64(PI): a bare literal is a float32 constant (default_fp)
 # One camera path's accumulators: direct light so far, its pixel, the initial-radius rule.
 CameraPath = ti.types.struct(direct=vec3, pixel=ti.i32, r_abs=ti.f32, r_per_dist=ti.f32, rays=ti.i32)
-NORMAL_COS_MIN = 0.1              # photon and MP surfaces must face alike (mitsuba #145 family)
 
 
 class _HashSource:

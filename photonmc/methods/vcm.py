@@ -30,100 +30,22 @@ from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import PointGrid
 from ..kernels.photon import MAX_PHOTON_SEGMENTS, trace_photon
 from ..kernels.sampling import onb, to_local, vec3
+from ..kernels.subpath_store import BYTES_PER_STORED_VERTEX, SubpathVertices
 from ..kernels.vcm_mis import MisConstants, PathVertex
+from ..kernels import vcm_techniques
 from .base import Method
-from .sppm import NORMAL_COS_MIN, _HashSource
+from .sppm import _HashSource
 
 # name -> (connections incl. next-event estimation, merging, light tracing)
 TECHNIQUES = {"vcm": (True, True, True), "bpt": (True, False, True), "bpm": (False, True, False),
               "lt": (False, False, True)}
 DEFAULT_RADIUS_PIXELS = 2.0      # r_1: pixel footprints at the median distance of the first hits
 INITIAL_VERTICES_PER_PATH = 4    # light-vertex storage per light subpath; grows when exceeded
-BYTES_PER_STORED_VERTEX = 96 + 4 + 12 + 12   # record, order/valid, grid entry and position, table share
 MAX_STORE_BYTES = 8 << 30        # refuse (a clear error) rather than fail to allocate
 PI = math.pi
 # One camera subpath's accumulators and the iteration's settings it needs at its vertices.
 CameraSubpath = ti.types.struct(L=vec3, merged=ti.types.vector(3, ti.i64), m=vcm_mis.SubpathMis, pixel=ti.i32,
                                 max_depth=ti.i32, vm_normalization=ti.f32)
-
-
-@ti.data_oriented
-class LightVertices:
-    """The iteration's light-subpath vertices: appended by the light pass in any order, then
-    ordered by (path, index along the path) through `order`, so that a camera subpath finds
-    its paired light subpath's vertices in a fixed order whatever the thread scheduling."""
-
-    def __init__(self, capacity: int, n_paths: int):
-        self.capacity = capacity
-        f = FieldGroup(f"vcm-light-vertices-{capacity}")
-        (self.p, self.ng, self.n, self.wo, self.beta, self.dvcm, self.dvc, self.dvm, self.length, self.bsdf,
-         self.path, self.index) = f.interleaved(capacity, [
-            (3, ti.f32, None), (3, ti.f32, None), (3, ti.f32, None), (3, ti.f32, None), (3, ti.f32, None),
-            (None, ti.f32, None), (None, ti.f32, None), (None, ti.f32, None), (None, ti.i32, None),
-            (None, ti.i32, None), (None, ti.i32, None), (None, ti.i32, None)])
-        self.valid = f.scalar(ti.i32, capacity)
-        self.order = f.scalar(ti.i32, capacity)
-        self.path_count = f.scalar(ti.i32, n_paths)
-        self.path_start = f.scalar(ti.i32, n_paths)
-        self.count = f.scalar(ti.i32)
-        f.finalize()
-        self.fields = f
-
-    def release(self):
-        self.fields.release()
-
-    @ti.func
-    def append(self, path: ti.i32, v):
-        slot = ti.atomic_add(self.count[None], 1)
-        index = ti.atomic_add(self.path_count[path], 1)     # one thread per path: 0, 1, 2, ...
-        if slot < self.capacity:
-            self.p[slot] = v.p
-            self.ng[slot] = v.ng
-            self.n[slot] = v.n
-            self.wo[slot] = v.wo
-            self.beta[slot] = v.beta
-            self.dvcm[slot] = v.dvcm
-            self.dvc[slot] = v.dvc
-            self.dvm[slot] = v.dvm
-            self.length[slot] = v.length
-            self.bsdf[slot] = v.bsdf
-            self.path[slot] = path
-            self.index[slot] = index
-
-    @ti.func
-    def vertex(self, slot: ti.i32):
-        return PathVertex(p=self.p[slot], ng=self.ng[slot], n=self.n[slot], wo=self.wo[slot], beta=self.beta[slot],
-                          length=self.length[slot], bsdf=self.bsdf[slot], dvcm=self.dvcm[slot], dvc=self.dvc[slot],
-                          dvm=self.dvm[slot])
-
-    @ti.kernel
-    def clear(self, n_paths: ti.i32):
-        self.count[None] = 0
-        for i in range(n_paths):
-            self.path_count[i] = 0
-
-    @ti.kernel
-    def _starts(self, n_paths: ti.i32):
-        ti.loop_config(serialize=True)
-        for i in range(n_paths):
-            if i == 0:
-                self.path_start[0] = 0
-            else:
-                self.path_start[i] = self.path_start[i - 1] + self.path_count[i - 1]
-
-    @ti.kernel
-    def _order(self):
-        n = self.count[None]
-        for slot in range(self.capacity):
-            self.valid[slot] = 0
-            if slot < n:
-                self.order[self.path_start[self.path[slot]] + self.index[slot]] = slot
-                self.valid[slot] = 1
-
-    def finish(self, n_paths: int):
-        """After the light pass: path order, and which slots hold a vertex (for the grid)."""
-        self._starts(n_paths)
-        self._order()
 
 
 @ti.data_oriented
@@ -150,12 +72,12 @@ class Vcm(Method):
             raise SettingsError(f"--light-paths must be between 1 and 2^26, got {self.n_light}")
         self.alpha = float(opts["alpha"])
         if not 0.0 < self.alpha <= 1.0:
-            raise SettingsError(f"--alpha must be in (0, 1] for vcm (1 keeps the radius fixed), got {self.alpha}")
+            raise SettingsError(f"--alpha must be in (0, 1] for {self.name} (1 keeps the radius fixed), got {self.alpha}")
         if opts["radius"] is not None and not (0 < opts["radius"] < math.inf):
             raise SettingsError(f"--radius must be a positive length, got {opts['radius']}")
-        if opts["techniques"] not in TECHNIQUES:
-            raise SettingsError(f"unknown --techniques '{opts['techniques']}' (choose from {', '.join(TECHNIQUES)})")
-        self.techniques = opts["techniques"]
+        self.techniques = opts.get("techniques", "vcm")      # mbe: always every technique
+        if self.techniques not in TECHNIQUES:
+            raise SettingsError(f"unknown --techniques '{self.techniques}' (choose from {', '.join(TECHNIQUES)})")
         self.use_vc, self.use_vm, self.use_lt = TECHNIQUES[self.techniques]
         self.lt_only = self.techniques == "lt"
         self.stores_vertices = self.use_vc or self.use_vm
@@ -166,33 +88,37 @@ class Vcm(Method):
         self.r1 = None if opts["radius"] is None else float(opts["radius"])
         self.radius = 0.0
 
-        f = FieldGroup("vcm")
-        self.consts = f.vector(4, ti.f32, ())        # MisConstants of this iteration, then r^2
+        f = FieldGroup(self.name)
+        self.consts = f.vector(5, ti.f32, ())        # MisConstants of this iteration, then r^2
         self.first_hit = f.scalar(ti.f32, self.n_pixels)
         self.counters = f.scalar(ti.i64, 1)          # light subpaths that left a vertex
         f.finalize()
         self.fields = f
         radiance = dscene.scene.emitter_radiance
         self.film = SplatFilm(w, h, float(np.max(radiance)) if len(radiance) else 1.0)
-        capacity = opts["light_vertex_capacity"] or self.n_light * min(self.max_light_segments,
-                                                                      INITIAL_VERTICES_PER_PATH)
+        capacity = opts.get("light_vertex_capacity") or self._stored_paths() * min(self.max_light_segments,
+                                                                                  INITIAL_VERTICES_PER_PATH)
         self.store = self.grid = None
         if self.stores_vertices:
             self._allocate_store(int(max(capacity, 1)))
         self.vertices_last = 0
         self.store_grown = 0
 
+    def _stored_paths(self) -> int:
+        """Subpaths whose vertices the iteration stores: the light subpaths."""
+        return self.n_light
+
     def _allocate_store(self, capacity: int):
         need = capacity * BYTES_PER_STORED_VERTEX
         if need > MAX_STORE_BYTES:
-            raise SettingsError(f"vcm would need {need / 2**30:.1f} GiB to store {capacity} light vertices per "
-                                f"iteration (at most {MAX_STORE_BYTES >> 30} GiB): use fewer --light-paths "
-                                f"(now {self.n_light}) or a smaller --max-depth")
+            raise SettingsError(f"{self.name} would need {need / 2**30:.1f} GiB to store {capacity} subpath vertices "
+                                f"per iteration (at most {MAX_STORE_BYTES >> 30} GiB): use a smaller resolution, "
+                                f"fewer --light-paths (now {self.n_light}) or a smaller --max-depth")
         if self.store is not None:
             self.store.release()
         if self.grid is not None:
             self.grid.release()
-        self.store = LightVertices(capacity, self.n_light)
+        self.store = SubpathVertices(capacity, self._stored_paths(), f"{self.name}-vertices")
         self.grid = PointGrid(capacity) if self.use_vm else None
 
     def release(self):
@@ -221,7 +147,7 @@ class Vcm(Method):
         self.radius = self._radius_at(it)
         eta = PI * self.radius ** 2 * self.n_light
         self.consts[None] = [eta if self.use_vm else 0.0, 1.0 / eta if self.use_vc else 0.0, float(self.n_light),
-                             self.radius ** 2]
+                             1.0, self.radius ** 2]
         # The store and the grid are template arguments of the passes (a grown store compiles
         # them anew); without a store (light tracing only) any other object stands in.
         while True:
@@ -261,7 +187,7 @@ class Vcm(Method):
     @ti.func
     def mis_constants(self):
         c = self.consts[None]
-        return MisConstants(vm_weight=c[0], vc_weight=c[1], n_light=c[2])
+        return MisConstants(vm_weight=c[0], vc_weight=c[1], n_light=c[2], camera_only=c[3])
 
     # -- light side ----------------------------------------------------------------------
     @ti.kernel
@@ -286,27 +212,10 @@ class Vcm(Method):
     @ti.func
     def _connect_to_camera(self, v):
         """Light tracing (t = 1): the light vertex seen by the camera, splatted to its pixel."""
-        sc = self.dscene
-        ok, x, y = sc.camera_raster(v.p)
-        if ok:
-            to_cam = sc.cam_origin - v.p
-            dist2 = to_cam.dot(to_cam)
-            w = to_cam / ti.sqrt(dist2)
-            t1, t2 = onb(v.n)
-            w_l = to_local(w, t1, t2, v.n)
-            e = sc.bsdf_evaluate(v.bsdf, to_local(v.wo, t1, t2, v.n), w_l)
-            if e.f.max() > 0.0:
-                c = self.mis_constants()
-                camera_pdf_a = vcm_mis.pdf_w_to_a(sc.camera_pdf_w(-w), dist2, w_l.z)
-                weight = 1.0
-                if ti.static(not self.lt_only):
-                    q = sc.bsdf_continuation(v.bsdf)
-                    weight = vcm_mis.light_trace_weight(v, camera_pdf_a, e.pdf_rev_w * q, c)
-                contrib = v.beta * e.f * (weight * camera_pdf_a / c.n_light)
-                if contrib.max() > 0.0 and sc.visible(v.p, v.ng, sc.cam_origin, w):
-                    px = ti.min(ti.cast(x, ti.i32), sc.width - 1)
-                    py = ti.min(ti.cast(y, ti.i32), sc.height - 1)
-                    self.film.splat(py, px, contrib)
+        c = self.mis_constants()
+        seen, px, py, contrib = vcm_techniques.light_to_camera(self.dscene, v, c, not self.lt_only, 1.0 / c.n_light)
+        if seen:
+            self.film.splat(py, px, contrib)
 
     # -- camera side ---------------------------------------------------------------------
     @ti.kernel
@@ -361,7 +270,7 @@ class Vcm(Method):
         w = 1.0                          # emitters seen directly: no other technique makes these
         if length > 1:
             if ti.static(self.use_vc):
-                w = vcm_mis.emitter_hit_weight(m, eh.direct_pdf_a, eh.emission_pdf_w, True)
+                w = vcm_mis.emitter_hit_weight(m, eh.direct_pdf_a, eh.emission_pdf_w, True, self.mis_constants())
             elif ti.static(self.use_vm):
                 w = 1.0 if specular else 0.0     # bpm: merging makes every path with a non-delta vertex
             else:
@@ -388,32 +297,13 @@ class Vcm(Method):
                                max_depth: ti.i32):
         """Connections (s, t >= 2) to every vertex of the light subpath paired with this pixel
         (the one with the pixel's index, as in SmallVCM: N_L = pixels by default)."""
-        sc = self.dscene
         total = vec3(0.0)
         path = pixel % ti.static(self.n_light)
         first = store.path_start[path]
         for k in range(store.path_count[path]):
             lv = store.vertex(store.order[first + k])
             if lv.length + 1 + cv.length <= max_depth:
-                to_l = lv.p - cv.p
-                dist2 = to_l.dot(to_l)
-                if dist2 > 0.0:
-                    w = to_l / ti.sqrt(dist2)
-                    wi_l = to_local(w, t1, t2, cv.n)
-                    ec = sc.bsdf_evaluate(cv.bsdf, wo_l, wi_l)
-                    l1, l2 = onb(lv.n)
-                    wl_l = to_local(-w, l1, l2, lv.n)
-                    el = sc.bsdf_evaluate(lv.bsdf, to_local(lv.wo, l1, l2, lv.n), wl_l)
-                    if ec.f.max() > 0.0 and el.f.max() > 0.0:
-                        ql = sc.bsdf_continuation(lv.bsdf)
-                        camera_fwd_a = vcm_mis.pdf_w_to_a(ec.pdf_fwd_w * q, dist2, wl_l.z)
-                        light_fwd_a = vcm_mis.pdf_w_to_a(el.pdf_fwd_w * ql, dist2, wi_l.z)
-                        weight = vcm_mis.connection_weight(lv, cv, camera_fwd_a, ec.pdf_rev_w * q, light_fwd_a,
-                                                           el.pdf_rev_w * ql, c)
-                        g = ti.abs(wi_l.z * wl_l.z) / dist2
-                        contrib = ec.f * el.f * lv.beta * (weight * g)
-                        if contrib.max() > 0.0 and sc.visible(cv.p, cv.ng, lv.p, lv.ng):
-                            total += contrib
+                total += vcm_techniques.connect(self.dscene, cv, wo_l, t1, t2, q, lv, c)
         return total
 
     @ti.func
@@ -421,7 +311,6 @@ class Vcm(Method):
                vm_normalization: ti.f32):
         """Merging (photon mapping at every non-delta camera vertex) with the light vertices
         within the radius, in fixed point: the sum does not depend on the grid's order."""
-        sc = self.dscene
         total = ti.Vector([0, 0, 0], ti.i64)
         r2 = self.radius_sq()
         slots, n_slots = grid.slots_near(cv.p)
@@ -430,22 +319,16 @@ class Vcm(Method):
             for e in range(first, end):
                 if (grid.entry_pos[e] - cv.p).norm_sqr() <= r2:
                     slot = grid.entries[e]
-                    if store.length[slot] + cv.length > max_depth:
-                        continue
-                    ln = store.n[slot]
-                    lwo = store.wo[slot]
-                    if lwo.dot(cv.n) > 0.0 and ln.dot(cv.n) >= NORMAL_COS_MIN:
+                    if store.length[slot] + cv.length <= max_depth and \
+                            vcm_techniques.can_merge(cv.n, store.n[slot], store.wo[slot]):
                         lv = store.vertex(slot)
-                        ev = sc.bsdf_evaluate(cv.bsdf, wo_l, to_local(lwo, t1, t2, cv.n))
-                        if ev.f.max() > 0.0:
-                            ql = sc.bsdf_continuation(lv.bsdf)
-                            weight = vcm_mis.merge_weight(lv, cv, ev.pdf_fwd_w * q, ev.pdf_rev_w * ql, c)
-                            total += self.film.fixed(cv.beta * ev.f * lv.beta * (weight * vm_normalization))
+                        total += self.film.fixed(vcm_techniques.merge(self.dscene, cv, wo_l, t1, t2, q, lv, c,
+                                                                      vm_normalization))
         return total
 
     @ti.func
     def radius_sq(self) -> ti.f32:
-        return self.consts[None][3]
+        return self.consts[None][4]
 
     # -- results ----------------------------------------------------------------------
     def image(self):
