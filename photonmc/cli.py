@@ -100,8 +100,8 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
 
 
 def _add_guiding_options(parser):
-    g = parser.add_argument_group("Markov-chain photon guiding (visibility, spatial-tf)")
-    g.add_argument("--chains", type=int, help="parallel Markov-chain ladders (default 4)")
+    g = parser.add_argument_group("Markov chains (visibility, spatial-tf; mbe takes --chains and --target-acceptance)")
+    g.add_argument("--chains", type=int, help="parallel Markov-chain ladders (default 4; mbe 16)")
     g.add_argument("--target-acceptance", type=float,
                    help="acceptance rate the mutation size adapts to (default 0.234)")
     g.add_argument("--proposal-failures", choices=["keep", "drop"],
@@ -114,18 +114,22 @@ def _add_guiding_options(parser):
 
 
 def _add_vcm_options(parser):
-    g = parser.add_argument_group("vertex connection and merging (vcm; --alpha and --radius as above, "
+    g = parser.add_argument_group("vertex connection and merging (vcm, mbe; --alpha and --radius as above, "
                                   "default alpha 0.75 and 2 pixel footprints at the median first-hit distance)")
-    g.add_argument("--light-paths", type=int, help="light subpaths per iteration (default: one per pixel)")
-    g.add_argument("--techniques", help="vcm (default: all), bpt (no merging), bpm (merging only), "
+    g.add_argument("--light-paths", type=int, help="light subpaths per iteration (default: one per pixel); "
+                                                   "mbe: chain steps per iteration")
+    g.add_argument("--techniques", help="vcm only: vcm (default: all), bpt (no merging), bpm (merging only), "
                                         "lt (light tracing only)")
+    g.add_argument("--mis", choices=["modified", "plain"],
+                   help="mbe: modified (default) counts the camera-only techniques b_V times, as the chains' "
+                        "light subpaths have density 1/b_V; plain keeps VCM's weights (docs/mbe.md)")
 
 
 def _method_options(args) -> dict:
     return {"photons": args.photons, "alpha": args.alpha, "radius": args.radius, "chains": args.chains,
             "target_acceptance": args.target_acceptance, "proposal_failures": args.proposal_failures,
             "expected_values": args.expected_values, "path_target": args.path_target,
-            "light_paths": args.light_paths, "techniques": args.techniques}
+            "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis}
 
 
 def cmd_converge(args) -> int:

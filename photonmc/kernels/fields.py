@@ -186,6 +186,11 @@ class FieldGroup:
             field.from_numpy(values)
         self._uploads = []
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the group's fields (for memory figures)."""
+        return sum(_spec_bytes(s) for s in self._specs)
+
     def release(self):
         """Give the fields back (to the pool when they can serve a later group); the owner
         must not use them afterwards."""

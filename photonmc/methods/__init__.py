@@ -6,7 +6,7 @@ from .base import Method, MethodSettings
 
 # All methods photonmc is designed to offer; those not yet built are refused by name.
 PLANNED = ("pt", "sppm", "visibility", "spatial-tf", "vcm", "mbe")
-AVAILABLE = ("pt", "sppm", "visibility", "spatial-tf", "vcm")
+AVAILABLE = PLANNED
 
 
 def method_class(name: str):
@@ -25,6 +25,9 @@ def method_class(name: str):
     if name == "vcm":
         from .vcm import Vcm
         return Vcm
+    if name == "mbe":
+        from .mbe import Mbe
+        return Mbe
     if name in PLANNED:
         raise SettingsError(f"method '{name}' is not implemented yet in this version of photonmc "
                             f"(available: {', '.join(AVAILABLE)})")

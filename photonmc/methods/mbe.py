@@ -1,0 +1,385 @@
+"""Metropolised bidirectional estimators (Sik, Otsu, Hachisuka, Krivanek 2016; docs/mbe.md).
+
+VCM whose light subpaths come from Markov chains in primary sample space, evaluated against
+the iteration's stored camera subpaths. Each iteration:
+1. camera pass: one stratified subpath per pixel (vcm's camera walk) adds the camera-only
+   techniques straight to the frame (emitter hits, next-event estimation) and stores every
+   non-delta vertex, with its MIS partial sums, by pixel and in a hash grid of radius r_i;
+2. chain pass: `--light-paths` steps of the chain ladders (kernels/mcmc.py). A state u is one
+   light subpath plus one coordinate that picks the camera subpath it connects to; evaluating
+   it traces the light subpath and, at each non-delta light vertex, traces it to the camera,
+   connects it to every vertex of the paired camera subpath and merges it with every camera
+   vertex within r_i. Its splat list F(u) is what it adds to the image;
+3. two chains per ladder: level 0 targets T_V = 1[F(u) != 0] (uniform proposals, the H&J
+   loop), level 1 targets T_C = luminance of F(u) (mutations only, started by resampling the
+   bootstrap's uniform proposals), replica exchange between them. Each record splats
+   F(u) w / (b_l (T_V/b'_V + T_C/b'_C)) times b_l n / N_l (balance heuristic between the
+   chains, b' the previous iteration's normalisations, N_l the level's recorded weight);
+4. the chains' splats are kept per level, scaled by the pass's b_l at its end and added to
+   the frame, which becomes one sample of every pixel (SplatFilm).
+
+Pairing: the camera subpath comes from a coordinate of u, so T(u) is a function of the state
+alone (what a Markov chain needs) and a uniform proposal pairs uniformly over the pixels; a
+connection therefore counts n_pixels / N_L times (VCM pairs path i with pixel i, the same
+estimator in expectation when N_L = pixels).
+
+MIS: `--mis modified` (default) counts the camera-only techniques b_V times (kappa in
+kernels/vcm_mis.py): chain samples have density 1/b_V on the support of T_V, and where
+visibility is rare the light-based techniques deserve more weight; `--mis plain` keeps
+VCM's weights. Both are unbiased (the weights of each full path sum to one).
+"""
+import math
+
+import numpy as np
+import taichi as ti
+
+from ..errors import SettingsError
+from ..kernels import vcm_techniques
+from ..kernels.camera_walk import CONTINUE
+from ..kernels.fields import FieldGroup
+from ..kernels.mcmc import (
+    ACCEPTED,
+    DEPOSIT,
+    MUTATIONS,
+    N_COUNTERS,
+    PROBE,
+    SEEDED_COPIED,
+    SEEDED_RESAMPLED,
+    SWAPS_ACCEPTED,
+    SWAPS_TRIED,
+    UNIFORM,
+    UNIFORM_VISIBLE,
+    ChainPool,
+)
+from ..kernels.photon import dimensions, photon_segments, trace_photon
+from ..kernels.sampling import luminance, vec3
+from ..kernels.subpath_store import BYTES_PER_STORED_VERTEX
+from ..kernels.vcm_mis import PathVertex
+from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
+
+LEVELS = ("visibility", "contribution")
+
+
+@ti.data_oriented
+class _ChainModel:
+    """What the chain pool and the light tracer see of mbe: the model interface of
+    kernels/mcmc.py and the light-vertex visitor of kernels/photon.py, bound to one camera-
+    vertex store and grid. Kernels specialise on this object, so a grown store gets a new one
+    (and the chain kernels compile anew) instead of kernels that still read the old fields."""
+    visits_from_segment = 1
+    with_mis = True
+
+    def __init__(self, mbe, store, grid):
+        self.mbe, self.store, self.grid = mbe, store, grid
+
+    @ti.func
+    def mis_constants(self):
+        return self.mbe.mis_constants()
+
+    @ti.func
+    def trace(self, source: ti.template(), key, vkey, mode, w, t):
+        return self.mbe.trace_light_subpath(self, source, key, vkey, mode, w, t)
+
+    @ti.func
+    def visit_vertex(self, vkey: ti.i32, lv) -> ti.i32:
+        return self.mbe.visit_light_vertex(self.store, self.grid, vkey, lv)
+# Ladders run in parallel, one thread each: enough for the CPU's threads with room to balance,
+# few enough that each ladder's share of a pass (pixels / chains steps) spans many
+# regenerations. Independent of the scene; --chains overrides it.
+DEFAULT_CHAINS = 16
+BOOTSTRAP = 0.125     # fraction of each ladder's pass spent finding the contribution chain's start
+MAX_CHAINS = 1 << 16
+
+
+@ti.data_oriented
+class Mbe(Vcm):
+    name = "mbe"
+    work_unit = "paths"
+    default_iterations = 64
+    independent_iterations = False      # the chains carry their states and mutation sizes on
+    OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
+               "chains": None, "target_acceptance": 0.234, "mis": "modified"}
+    # The camera vertices live for one iteration; the chain model is bound to their store.
+    TRANSIENT = ("store", "grid", "chain_model", "_models")
+    n_levels = 2
+
+    def __init__(self, dscene, settings):
+        super().__init__(dscene, settings)
+        opts = self.options
+        if opts["mis"] not in ("modified", "plain"):
+            raise SettingsError(f"--mis must be 'modified' or 'plain', got '{opts['mis']}'")
+        self.modified_mis = opts["mis"] == "modified"
+        self.n_chains = int(opts["chains"] if opts["chains"] is not None else DEFAULT_CHAINS)
+        if not 1 <= self.n_chains <= MAX_CHAINS:
+            raise SettingsError(f"--chains must be between 1 and {MAX_CHAINS}, got {self.n_chains}")
+        if self.n_light < self.n_chains:
+            raise SettingsError(f"--light-paths ({self.n_light}) must be at least --chains ({self.n_chains}): "
+                                f"every chain takes steps")
+        self.target_acceptance = float(opts["target_acceptance"])
+        if not 0.0 < self.target_acceptance < 1.0:
+            raise SettingsError(f"--target-acceptance must be in (0, 1), got {self.target_acceptance}")
+        self.pair_dim = dimensions(self.max_light_segments)
+        self.pool = ChainPool(self.n_chains, self.n_levels, self.pair_dim + 1, seeding="resample",
+                              bootstrap=BOOTSTRAP)
+        w, h, c = dscene.width, dscene.height, self.n_chains
+        f = FieldGroup("mbe-chains")
+        self.visit_mode = f.scalar(ti.i32, c)
+        self.pair = f.scalar(ti.i32, c)
+        self.probe_sum = f.vector(3, ti.i64, c)          # F(u) in fixed point (order-independent)
+        self.deposit_weight = f.vector(self.n_levels, ti.f32, c)
+        self.light_frame = f.vector(3, ti.i64, (self.n_levels, h, w))
+        self.b_mis = f.scalar(ti.f32, self.n_levels)     # previous pass's normalisations (MIS only)
+        self.pre_scale = f.scalar(ti.f32, self.n_levels)  # previous pass's level scales (see deposit)
+        self.light_counters = f.scalar(ti.i64, 2)        # light subpaths traced, their segments
+        self._norms = f.vector(3, ti.f32, ())            # merging, pairing, light-tracing normalisations
+        f.finalize()
+        self.chain_fields = f
+        self._reset_chains()
+
+    def _stored_paths(self) -> int:
+        """mbe stores the camera subpaths' vertices, one subpath per pixel."""
+        return self.n_pixels
+
+    def _allocate_store(self, capacity: int):
+        super()._allocate_store(capacity)
+        # Every model stays alive: a kernel specialised on a freed one must never match a new
+        # object that happens to get its id.
+        self._models = getattr(self, "_models", [])
+        self.chain_model = _ChainModel(self, self.store, self.grid)
+        self._models.append(self.chain_model)
+
+    def release(self):
+        self.pool.release()
+        self.chain_fields.release()
+        super().release()
+
+    def _reset(self):
+        super()._reset()
+        self.pool.reset()
+        self._reset_chains()
+
+    def _reset_chains(self):
+        self.b_mis.fill(1.0)
+        self.pre_scale.fill(1.0)
+        self.light_counters.fill(0)
+        self.light_frame.fill(0)
+        self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
+        self.b_last = np.zeros(self.n_levels)
+        self.b_sum = np.zeros(self.n_levels)
+        self.passes_with_b = 0
+        self.vertices_sum = 0
+
+    # -- the iteration -----------------------------------------------------------------
+    def _iterate(self):
+        it = self.iteration_index
+        self.radius = self._radius_at(it)
+        # Sample counts relative to the connections', which count N_L / pixels per camera subpath.
+        ratio = self.n_pixels / self.n_light
+        eta = PI * self.radius ** 2 * self.n_pixels
+        kappa = (float(self.b_mis[0]) if self.modified_mis else 1.0) * ratio
+        self.consts[None] = [eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2]
+        vm_normalization = 1.0 / (PI * self.radius ** 2 * self.n_light)
+        while True:
+            self.store.clear(self.n_pixels)
+            self._camera_pass(self.store, self.fields, self.seed_u32, it, self.max_depth, vm_normalization)
+            n = int(self.store.count[None])
+            if n <= self.store.capacity:
+                break
+            self.film.clear_frame()        # counter-based random numbers: the redo is the same pass
+            self._allocate_store(int(n * 1.25) + 1024)
+            self.store_grown += 1
+        self.vertices_last = n
+        self.vertices_sum += n
+        self.store.finish(self.n_pixels)
+        self.grid.build(self.store.p, self.radius, self.store.valid)
+        self._set_normalizations(vm_normalization, ratio)
+
+        steps = self.n_light
+        self.pool.begin_pass(self.chain_model)
+        self.pool.run(self.chain_model, self.seed_u32, it, steps)
+        tallies = self.pool.tallies()
+        b = self.pool.normalisations(tallies)
+        recorded = tallies["recorded"]
+        scale = np.where(recorded > 0, b * steps / np.maximum(recorded, 1e-300), 0.0)
+        pre = self.pre_scale.to_numpy().astype(np.float64)
+        self._add_light_frames(*(scale / pre))
+        self.film.flush()
+        self.pool.adapt(tallies, self.target_acceptance)
+        if (b > 0).all():
+            self.b_mis.from_numpy(b.astype(np.float32))
+        if (scale > 0).all():
+            self.pre_scale.from_numpy(scale.astype(np.float32))
+        self.totals += tallies["counters"]
+        self.b_last = b
+        if b[0] > 0:
+            self.b_sum += b
+            self.passes_with_b += 1
+        self.work_done += steps + self.n_pixels
+
+    def _set_normalizations(self, vm_normalization: float, pairing: float):
+        self.norms = (vm_normalization, pairing, 1.0 / self.n_light)
+        self._norms[None] = list(self.norms)
+
+    # -- camera side: vcm's camera walk, storing vertices instead of using light ones ----
+    @ti.func
+    def at_vertex(self, acc: ti.template(), w, s, b: ti.i32, n, t1, t2, wo, wo_l, state: ti.template()) -> ti.i32:
+        """Next-event estimation at a non-delta camera vertex, and the vertex stored for the
+        chains' connections and merging."""
+        sc = self.dscene
+        c = self.mis_constants()
+        cv = PathVertex(p=s.p, ng=s.ng, n=n, wo=wo, beta=w.beta, length=w.length, bsdf=b, dvcm=acc.m.dvcm,
+                        dvc=acc.m.dvc, dvm=acc.m.dvm)
+        if w.length + 1 <= acc.max_depth:
+            acc.L += w.beta * self._next_event(cv, wo_l, t1, t2, sc.bsdf_continuation(b), state, c)
+        self.store.append(acc.pixel, cv)
+        return CONTINUE
+
+    # -- light side: the chains' model (kernels/mcmc.py) ------------------------------------
+    @ti.func
+    def trace_light_subpath(self, model: ti.template(), source: ti.template(), key, vkey, mode, w, t):
+        """Trace the light subpath `key` names against the stored camera subpaths. PROBE:
+        its targets (T_V, T_C); DEPOSIT: splat F(u) with weight w[l] recorded at level l."""
+        self.visit_mode[vkey] = mode
+        self.pair[vkey] = ti.min(ti.cast(source.get(key, ti.static(self.pair_dim)) * self.n_pixels, ti.i32),
+                                 self.n_pixels - 1)
+        self.probe_sum[vkey] = ti.Vector([0, 0, 0], ti.i64)
+        if mode == DEPOSIT:
+            self._set_deposit_weights(vkey, w, t)
+        _, dims = trace_photon(self.dscene, source, key, model, vkey, ti.static(self.max_light_segments))
+        ti.atomic_add(self.light_counters[0], 1)
+        ti.atomic_add(self.light_counters[1], photon_segments(dims))
+        out = ti.Vector([0.0] * self.n_levels)
+        if mode == PROBE:
+            lum = luminance(ti.cast(self.probe_sum[vkey], ti.f32) * ti.static(self.film.unit))
+            if lum > 0.0:
+                out = ti.Vector([1.0, lum])
+        return out, dims
+
+    @ti.func
+    def _set_deposit_weights(self, vkey, w, t):
+        """m_l / T_l with the balance heuristic m_l = (T_l/b'_l) / sum_k T_k/b'_k, times the
+        previous pass's level scale, so that splats land near their final size (fixed point)."""
+        denom = 0.0
+        for k in ti.static(range(self.n_levels)):
+            if t[k] > 0.0:
+                denom += t[k] / self.b_mis[k]
+        dw = ti.Vector([0.0] * self.n_levels)
+        if denom > 0.0:
+            for level in ti.static(range(self.n_levels)):
+                if w[level] > 0.0 and t[level] > 0.0:
+                    dw[level] = w[level] / (self.b_mis[level] * denom) * self.pre_scale[level]
+        self.deposit_weight[vkey] = dw
+
+    @ti.func
+    def _emit(self, vkey, y: ti.i32, x: ti.i32, contrib):
+        """One entry of the splat list: summed for the targets, or deposited per level."""
+        if self.visit_mode[vkey] == PROBE:
+            self.probe_sum[vkey] += self.film.fixed(contrib)
+        else:
+            dw = self.deposit_weight[vkey]
+            for level in ti.static(range(self.n_levels)):
+                if dw[level] > 0.0:
+                    v = self.film.fixed(contrib * dw[level])
+                    for k in ti.static(range(3)):
+                        ti.atomic_add(self.light_frame[level, y, x][k], v[k])
+
+    @ti.func
+    def visit_light_vertex(self, store: ti.template(), grid: ti.template(), vkey: ti.i32, lv) -> ti.i32:
+        """A non-delta light vertex: light tracing, connections to the paired camera subpath,
+        merging with the camera vertices in range."""
+        sc = self.dscene
+        c = self.mis_constants()
+        norms = self._norms[None]
+        used = 0
+        if lv.length + 1 <= ti.static(self.max_depth):
+            seen, px, py, contrib = vcm_techniques.light_to_camera(sc, lv, c, True, norms[2])
+            if seen:
+                self._emit(vkey, py, px, contrib)
+                used = 1
+        # Connections: every vertex of the paired camera subpath.
+        pixel = self.pair[vkey]
+        py0 = pixel // sc.width
+        px0 = pixel - py0 * sc.width
+        first = store.path_start[pixel]
+        total = vec3(0.0)
+        for k in range(store.path_count[pixel]):
+            cv = store.vertex(store.order[first + k])
+            if lv.length + 1 + cv.length <= ti.static(self.max_depth):
+                t1, t2, wo_l, q = vcm_techniques.camera_frame(sc, cv)
+                total += vcm_techniques.connect(sc, cv, wo_l, t1, t2, q, lv, c)
+        if total.max() > 0.0:
+            self._emit(vkey, py0, px0, total * norms[1])
+            used = 1
+        # Merging: the camera vertices within r of the light vertex, each to its own pixel.
+        r2 = self.radius_sq()
+        slots, n_slots = grid.slots_near(lv.p)
+        for k in range(n_slots):
+            start, end = grid.slot_range(slots[k])
+            for e in range(start, end):
+                if (grid.entry_pos[e] - lv.p).norm_sqr() <= r2:
+                    slot = grid.entries[e]
+                    if store.length[slot] + lv.length <= ti.static(self.max_depth) and \
+                            vcm_techniques.can_merge(store.n[slot], lv.n, lv.wo):
+                        cv = store.vertex(slot)
+                        t1, t2, wo_l, q = vcm_techniques.camera_frame(sc, cv)
+                        contrib = vcm_techniques.merge(sc, cv, wo_l, t1, t2, q, lv, c, norms[0])
+                        if contrib.max() > 0.0:
+                            pix = store.path[slot]
+                            y = pix // sc.width
+                            self._emit(vkey, y, pix - y * sc.width, contrib)
+                            used = 1
+        return used
+
+    @ti.kernel
+    def _add_light_frames(self, s0: ti.f64, s1: ti.f64):
+        """End of the pass: the chains' splats, at their levels' final scales, join the frame."""
+        for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
+            total = ti.cast(self.light_frame[0, y, x], ti.f64) * s0 + ti.cast(self.light_frame[1, y, x], ti.f64) * s1
+            for k in ti.static(range(3)):
+                ti.atomic_add(self.film.frame[y, x][k], ti.cast(total[k] + 0.5, ti.i64))
+            for level in ti.static(range(2)):
+                self.light_frame[level, y, x] = ti.Vector([0, 0, 0], ti.i64)
+
+    # -- results ----------------------------------------------------------------------
+    def progress_fields(self) -> str:
+        t = self.totals
+        acc = t[:, ACCEPTED] / np.maximum(t[:, MUTATIONS], 1)
+        swap = t[0, SWAPS_ACCEPTED] / max(int(t[0, SWAPS_TRIED]), 1)
+        return (f"radius {self.radius:.3g}  b_V {self.b_last[0]:.2g}  acc {acc[0]:.2f}/{acc[1]:.2f}  "
+                f"swap {swap:.2f}")
+
+    def method_stats(self):
+        t = self.totals
+        theta = self.pool.theta.to_numpy()
+        levels = []
+        for level, name in enumerate(LEVELS):
+            mut = int(t[level, MUTATIONS])
+            levels.append({
+                "target": name, "mutations": mut,
+                "acceptance": float(t[level, ACCEPTED]) / mut if mut else None,
+                "theta": float(theta[level]),
+                "normalisation_last": float(self.b_last[level]),
+                "normalisation_mean": float(self.b_sum[level] / self.passes_with_b) if self.passes_with_b else None,
+                "starts_resampled": int(t[level, SEEDED_RESAMPLED]),
+                "starts_copied": int(t[level, SEEDED_COPIED]),
+            })
+        lc = self.light_counters.to_numpy()
+        vertices = self.store.capacity
+        camera_bytes = vertices * BYTES_PER_STORED_VERTEX
+        chain_bytes = self.pool.fields.nbytes + self.chain_fields.nbytes
+        return {
+            "light_paths_per_iteration": self.n_light, "chains": self.n_chains,
+            "mis": "modified" if self.modified_mis else "plain",
+            "radius": self.radius, "initial_radius": self.r1, "alpha": self.alpha,
+            "uniform_visible_fraction": float(t[0, UNIFORM_VISIBLE]) / max(int(t[0, UNIFORM]), 1),
+            "swap_acceptance": (float(t[0, SWAPS_ACCEPTED]) / t[0, SWAPS_TRIED] if t[0, SWAPS_TRIED] else None),
+            "levels": levels,
+            "light_subpaths_traced": int(lc[0]),
+            "light_segments_per_subpath": float(lc[1]) / max(int(lc[0]), 1),
+            "camera_vertices_last_iteration": self.vertices_last,
+            "camera_vertices_mean": self.vertices_sum / max(self.iterations, 1),
+            "camera_vertex_capacity": vertices,
+            "camera_vertex_store_grown": self.store_grown,
+            "memory_bytes": {"camera_vertices_and_grid": camera_bytes, "chains_and_level_frames": chain_bytes},
+            "nonfinite_samples_dropped": self.film.dropped(),
+        }
