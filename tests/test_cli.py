@@ -103,11 +103,12 @@ def test_malformed_scene_gives_one_line_error(tmp_path):
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "malformed XML" in r.stderr
 
 
-@pytest.mark.parametrize("method", ["pt", "spatial-tf", "vcm"])
+@pytest.mark.parametrize("method", ["pt", "spatial-tf", "vcm", "mbe"])
 def test_same_seed_same_image_for_any_thread_count(tmp_path, method):
     """spatial-tf: its ladders run in parallel (kernels/mcmc.py), two per thread with 2.
     vcm: light vertices are appended in thread order, then put in path order; light tracing
-    and merging add in fixed point (film.SplatFilm)."""
+    and merging add in fixed point (film.SplatFilm). mbe: both, with the camera vertices
+    stored and the chains' targets summed in fixed point."""
     images = []
     for threads in ("1", "2"):
         out = tmp_path / f"t{threads}.exr"

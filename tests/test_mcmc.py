@@ -179,10 +179,11 @@ def test_burn_in_removes_the_ladders_start_up_bias():
 
 def test_resampled_starts_replace_most_of_the_burn_in():
     """seeding='resample': each upper level starts from one of the bootstrap's uniform proposals
-    (the first eighth of the pass) drawn in proportion to its target, instead of a copy of the
-    level below. 160 steps per ladder and pass: copies recorded from the start are rejected
-    (measured chi-square 76 and 78 on 20 bins, limit 45), resampled starts pass (25, 29) while
-    discarding 1/8 of the upper levels' steps, not half."""
+    drawn in proportion to its target (once 8 proposals inside the support were offered, about
+    the first 29 steps here), instead of a copy of the level below. 160 steps per ladder and
+    pass: copies recorded from the start are rejected (measured chi-square 76 and 78 on 20
+    bins, limit 45), resampled starts pass (21, 23) while the upper levels skip a fifth of the
+    pass, not half. (At 50 steps per pass they do not: 173 and 223.)"""
     exact = exact_bins("strip", 3)
     limit = sps.chi2.ppf(0.999, int((exact[0] > 0).sum()))
 

@@ -18,7 +18,7 @@ from .conftest import SCENES
 CORNELL = str(SCENES / "cornell-box" / "scene.xml")
 SMALL = {"res": "16"}
 OPTIONS = {"pt": {}, "sppm": {"photons": 512}, "visibility": {"photons": 512}, "spatial-tf": {"photons": 512},
-           "vcm": {"light_paths": 256}}
+           "vcm": {"light_paths": 256}, "mbe": {"light_paths": 256}}
 
 
 def job(method, seed=3, **extra):

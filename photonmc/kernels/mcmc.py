@@ -16,11 +16,13 @@ Every level's support must lie inside the one below (normalisations, `normalisat
 Start of a pass (the targets changed, so every stored state is stale). A binary level 0 is
 exact from its first visible uniform proposal: that proposal is an exact draw from V/b_V.
 Any other level needs a start: `seeding="copy"` copies the state of the level below (then
-the ladder burns in, `burn_in`); `seeding="resample"` runs a bootstrap over the first
-`bootstrap` fraction of the ladder's steps, in which each level keeps one of the uniform
-proposals with probability proportional to its target (weighted reservoir sampling, the
-classic MLT bootstrap), and starts from it. A resampled start is exact as the bootstrap
-grows; its bias at production lengths is measured in docs/guiding.md.
+the ladder burns in, `burn_in`); `seeding="resample"` runs a bootstrap in which each level
+keeps one of the ladder's uniform proposals with probability proportional to its target
+(weighted reservoir sampling, the classic MLT bootstrap) and starts from it once
+`bootstrap_hits` proposals with a non-zero target have been offered, or, with at least one,
+when the first `bootstrap` fraction of the pass is over (a level that found none records
+nothing in this ladder and pass). A resampled start is exact as the bootstrap grows; its
+bias at production lengths is measured in tests/test_mcmc.py and docs/mbe.md.
 Replicas live in slots; the ladder's level->slot table is what an exchange permutes.
 
 Slot state: u[slot, :] is the whole primary sample vector (ell = 0 marks an empty slot,
@@ -129,7 +131,7 @@ def adapt_theta(theta: float, acceptance: float, target: float, k: int) -> float
 class ChainPool:
     def __init__(self, n_chains: int, n_levels: int, dims: int, drop_failures: bool = False,
                  expected_values: bool = False, burn_in: float = 0.0, binary_base: bool = True,
-                 seeding: str = "copy", bootstrap: float = 0.125):
+                 seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8):
         self.n_chains, self.n_levels, self.dims = n_chains, n_levels, dims
         if not 0.0 <= burn_in < 1.0:
             raise ValueError(f"burn_in is a fraction of each pass in [0, 1), got {burn_in}")
@@ -144,6 +146,9 @@ class ChainPool:
         self.binary_base = bool(binary_base)
         self.resample = seeding == "resample"
         self.bootstrap = float(bootstrap) if self.resample else 0.0
+        if bootstrap_hits < 1:
+            raise ValueError(f"bootstrap_hits must be at least 1, got {bootstrap_hits}")
+        self.bootstrap_hits = int(bootstrap_hits)
         self.n_slots = n_chains * n_levels
         self.drop_failures = bool(drop_failures)
         self.expected_values = bool(expected_values)
@@ -168,6 +173,7 @@ class ChainPool:
         self.reservoir_key = f.scalar(ti.u32, (n_chains, n_levels))
         self.reservoir_T = f.vector(n_levels, ti.f32, (n_chains, n_levels))
         self.reservoir_sum = f.scalar(ti.f64, (n_chains, n_levels))
+        self.reservoir_hits = f.scalar(ti.i32, (n_chains, n_levels))
         f.finalize()
         self.fields = f
         self.source = _ChainSource(self)
@@ -196,7 +202,8 @@ class ChainPool:
         light-gap, docs/guiding.md). So a pass records level 0 only from its first visible
         uniform proposal on (an exact draw from the new target, after which Metropolis keeps
         the chain exact), and a higher level only once seeded from a fresh level below."""
-        for fld in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.reservoir_sum):
+        for fld in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.reservoir_sum,
+                    self.reservoir_hits):
             fld.fill(0)
         self._visit_states(model, PROBE)
 
@@ -261,8 +268,7 @@ class ChainPool:
                 seeding_steps = ti.max(ti.cast(bootstrap * n, ti.i32), 1) if ti.static(self.resample) else 0
                 for i in range(n):
                     if ti.static(self.resample):
-                        if i == seeding_steps:
-                            self._seed_from_reservoirs(c)
+                        self._seed_from_reservoirs(c, i >= seeding_steps)
                         self.seeding_phase[c] = 1 if i < seeding_steps else 0
                     self.recording[c] = 1 if i >= burn else 0
                     self._step(model, c, state)
@@ -427,11 +433,8 @@ class ChainPool:
 
         if self.fresh[sa] and not self.fresh[sb]:
             # Seed the upper level with a copy of the lower one's state (no exchange is
-            # counted); with resampling only where its bootstrap found nothing for it.
-            seed_by_copy = ta[hi] > 0.0
-            if ti.static(self.resample):
-                seed_by_copy = seed_by_copy and not self.seeding_phase[c]
-            if seed_by_copy:
+            # counted); resampled ladders wait for their bootstrap instead.
+            if ti.static(not self.resample) and ta[hi] > 0.0:
                 self._copy(sa, sb)
                 ti.atomic_add(self.counters[hi, SEEDED_COPIED], 1)
         elif self.fresh[sa] and self.fresh[sb]:
@@ -452,21 +455,26 @@ class ChainPool:
                 if t > 0.0:
                     total = self.reservoir_sum[c, level] + ti.cast(t, ti.f64)
                     self.reservoir_sum[c, level] = total
+                    self.reservoir_hits[c, level] += 1
                     if rng.next_float(state) * total < t:
                         self.reservoir_key[c, level] = proposal_key
                         self.reservoir_T[c, level] = t_new
 
     @ti.func
-    def _seed_from_reservoirs(self, c):
-        """End of the bootstrap: every level that is not yet exact starts from its reservoir's
-        proposal (stale slots hold nothing pending, so nothing is lost)."""
+    def _seed_from_reservoirs(self, c, bootstrap_over):
+        """Before each step: a level that is not yet exact starts from its reservoir's proposal
+        once the reservoir has seen bootstrap_hits proposals, or any, when the bootstrap is
+        over (stale slots hold nothing pending, so nothing is lost)."""
         for level in ti.static(range(self.n_levels)):
             if ti.static(level > 0 or not self.binary_base):
                 s = self.level_slot[c, level]
-                if not self.fresh[s] and self.reservoir_sum[c, level] > 0.0:
+                hits = self.reservoir_hits[c, level]
+                ready = hits >= ti.static(self.bootstrap_hits) or (bootstrap_over and hits > 0)
+                if not self.fresh[s] and ready:
                     self._store(s, ti.math.uvec4(s, self.reservoir_key[c, level], level, UNIFORM_MODE),
                                 self.reservoir_T[c, level])
                     self.fresh[s] = 1
+                    self.reservoir_hits[c, level] = -1 << 30      # seeded: the reservoir is spent
                     ti.atomic_add(self.counters[level, SEEDED_RESAMPLED], 1)
 
     @ti.func

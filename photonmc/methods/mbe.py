@@ -83,11 +83,13 @@ class _ChainModel:
     @ti.func
     def visit_vertex(self, vkey: ti.i32, lv) -> ti.i32:
         return self.mbe.visit_light_vertex(self.store, self.grid, vkey, lv)
-# Ladders run in parallel, one thread each: enough for the CPU's threads with room to balance,
-# few enough that each ladder's share of a pass (pixels / chains steps) spans many
-# regenerations. Independent of the scene; --chains overrides it.
-DEFAULT_CHAINS = 16
-BOOTSTRAP = 0.125     # fraction of each ladder's pass spent finding the contribution chain's start
+# Ladders run in parallel, one thread each. Every ladder must meet several visible uniform
+# proposals per pass (its visibility chain is exact only from the first, its contribution
+# chain starts from the bootstrap's), so more ladders mean longer passes where visibility is
+# rare; 4 keep 2-4 CPU threads busy (the guided photon methods' choice, methods/guided.py).
+DEFAULT_CHAINS = 4
+REGENERATIONS = 16     # visible uniform proposals each ladder should meet per pass
+MAX_PASS_FACTOR = 64   # a pass takes at most this many times --light-paths chain steps
 MAX_CHAINS = 1 << 16
 
 
@@ -119,8 +121,7 @@ class Mbe(Vcm):
         if not 0.0 < self.target_acceptance < 1.0:
             raise SettingsError(f"--target-acceptance must be in (0, 1), got {self.target_acceptance}")
         self.pair_dim = dimensions(self.max_light_segments)
-        self.pool = ChainPool(self.n_chains, self.n_levels, self.pair_dim + 1, seeding="resample",
-                              bootstrap=BOOTSTRAP)
+        self.pool = ChainPool(self.n_chains, self.n_levels, self.pair_dim + 1, seeding="resample")
         w, h, c = dscene.width, dscene.height, self.n_chains
         f = FieldGroup("mbe-chains")
         self.visit_mode = f.scalar(ti.i32, c)
@@ -164,21 +165,38 @@ class Mbe(Vcm):
         self.light_counters.fill(0)
         self.light_frame.fill(0)
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
+        self.steps_last = self.n_light
+        self.norms = (0.0, 0.0, 0.0)
         self.b_last = np.zeros(self.n_levels)
         self.b_sum = np.zeros(self.n_levels)
         self.passes_with_b = 0
         self.vertices_sum = 0
 
     # -- the iteration -----------------------------------------------------------------
+    def _steps_this_pass(self) -> int:
+        """--light-paths chain steps, more where the last pass's visible fraction b_V would
+        leave a ladder fewer than REGENERATIONS visible uniform proposals (twice the last
+        length after a pass that found none), at most MAX_PASS_FACTOR x --light-paths. The
+        pass's light subpath count N_L is this length: the MIS counts and normalisations
+        follow it."""
+        n = self.n_light
+        if self.iterations > 0:
+            b0 = self.b_last[0]
+            want = self.steps_last * 2 if b0 <= 0 else math.ceil(REGENERATIONS / b0) * self.n_chains
+            n = max(n, min(int(want), MAX_PASS_FACTOR * self.n_light))
+        self.steps_last = n
+        return n
+
     def _iterate(self):
         it = self.iteration_index
         self.radius = self._radius_at(it)
+        steps = self._steps_this_pass()
         # Sample counts relative to the connections', which count N_L / pixels per camera subpath.
-        ratio = self.n_pixels / self.n_light
+        ratio = self.n_pixels / steps
         eta = PI * self.radius ** 2 * self.n_pixels
         kappa = (float(self.b_mis[0]) if self.modified_mis else 1.0) * ratio
         self.consts[None] = [eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2]
-        vm_normalization = 1.0 / (PI * self.radius ** 2 * self.n_light)
+        vm_normalization = 1.0 / (PI * self.radius ** 2 * steps)
         while True:
             self.store.clear(self.n_pixels)
             self._camera_pass(self.store, self.fields, self.seed_u32, it, self.max_depth, vm_normalization)
@@ -192,9 +210,7 @@ class Mbe(Vcm):
         self.vertices_sum += n
         self.store.finish(self.n_pixels)
         self.grid.build(self.store.p, self.radius, self.store.valid)
-        self._set_normalizations(vm_normalization, ratio)
-
-        steps = self.n_light
+        self._set_normalizations(vm_normalization, ratio, steps)
         self.pool.begin_pass(self.chain_model)
         self.pool.run(self.chain_model, self.seed_u32, it, steps)
         tallies = self.pool.tallies()
@@ -216,8 +232,8 @@ class Mbe(Vcm):
             self.passes_with_b += 1
         self.work_done += steps + self.n_pixels
 
-    def _set_normalizations(self, vm_normalization: float, pairing: float):
-        self.norms = (vm_normalization, pairing, 1.0 / self.n_light)
+    def _set_normalizations(self, vm_normalization: float, pairing: float, steps: int):
+        self.norms = (vm_normalization, pairing, 1.0 / steps)
         self._norms[None] = list(self.norms)
 
     # -- camera side: vcm's camera walk, storing vertices instead of using light ones ----
@@ -368,7 +384,8 @@ class Mbe(Vcm):
         camera_bytes = vertices * BYTES_PER_STORED_VERTEX
         chain_bytes = self.pool.fields.nbytes + self.chain_fields.nbytes
         return {
-            "light_paths_per_iteration": self.n_light, "chains": self.n_chains,
+            "light_paths_per_iteration": self.n_light, "chain_steps_last_iteration": self.steps_last,
+            "chains": self.n_chains,
             "mis": "modified" if self.modified_mis else "plain",
             "radius": self.radius, "initial_radius": self.r1, "alpha": self.alpha,
             "uniform_visible_fraction": float(t[0, UNIFORM_VISIBLE]) / max(int(t[0, UNIFORM]), 1),

@@ -1,0 +1,126 @@
+"""Metropolised bidirectional estimators (methods/mbe.py): analytic furnace, agreement with
+Mitsuba and with vcm, rare and absent visibility, one chain and many, determinism, options.
+
+The chains themselves are tested on toy targets in test_mcmc.py, the modified MIS weights
+in test_vcm_mis.py (weights sum to one for any kappa)."""
+import math
+
+import numpy as np
+import pytest
+
+from photonmc import load_scene
+from photonmc.errors import SettingsError
+from photonmc.imageio import read_image
+from photonmc.loop import Budget, prepare, run
+from photonmc.metrics import luminance, mean_luminance
+
+from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml
+from .test_pt import furnace_expectation, furnace_xml
+
+
+def render(scene, iterations, seed=0, max_depth=None, **options):
+    p = prepare(scene, method="mbe", seed=seed, max_depth=max_depth, options=options)
+    r = run(p, Budget(iterations=iterations), quiet=True)
+    p.release()
+    return r
+
+
+@pytest.mark.parametrize("mis", ["modified", "plain"])
+def test_sphere_furnace_analytic(write_scene, mis):
+    """Inside an emitting diffuse sphere L = Le sum_{k<D} albedo^k, every light subpath
+    contributes (b_V = 1) and the contribution chain mutates freely: both MIS variants reach it."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    r = render(scene, 48, seed=2, max_depth=3, mis=mis)
+    lum = luminance(r.image)
+    expected = furnace_expectation(3)
+    spread = lum.std()
+    assert abs(lum.mean() - expected) < 5 * spread / math.sqrt(lum.size) + 2e-3 * expected, (mis, lum.mean())
+    assert r.stats["nonfinite_samples_dropped"] == 0
+    assert r.stats["uniform_visible_fraction"] == pytest.approx(1.0)
+    contribution = r.stats["levels"][1]
+    assert contribution["mutations"] > 0 and contribution["starts_resampled"] > 0
+
+
+def _closet(res=16):
+    """A room lit only through a gap under a closet door (tools/heldout/closet-door.xml)."""
+    return load_scene(SCENES.parent / "tools" / "heldout" / "closet-door.xml", {"res": res})
+
+
+def test_rare_visibility_renders_and_no_visibility_is_black(write_scene):
+    """Where few light subpaths reach anything the camera sees, the chains still find them
+    (b_V well below 1, a non-black image); where none can (the lamp faces away into a closed
+    box), the image is black and finite, with b_V = 0 reported, not a failure."""
+    r = render(_closet(), 6, seed=1)
+    assert 0 < r.stats["uniform_visible_fraction"] < 0.5
+    assert np.isfinite(r.image).all() and r.image.mean() > 0
+    dark = load_scene(write_scene(camera_xml(res=8, fov=60, origin="0,0,3", target="0,0,0") + """
+        <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="180"/>
+            <translate z="-1"/></transform>
+            <emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>
+        <shape type="rectangle"><transform name="to_world"><scale value="3"/><translate z="-0.5"/></transform>
+            <bsdf type="diffuse"/></shape>"""))
+    d = render(dark, 3)
+    assert np.isfinite(d.image).all()
+    assert d.stats["levels"][0]["normalisation_last"] == 0.0
+
+
+def test_one_chain_and_many_agree(write_scene):
+    """One ladder or 64 (light paths per pass fixed): the same expectation on the furnace."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    expected = furnace_expectation(3)
+    for chains in (1, 64):
+        r = render(scene, 24, seed=3, max_depth=3, chains=chains)
+        lum = luminance(r.image)
+        assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 3e-3 * expected, chains
+        assert r.stats["chains"] == chains
+
+
+def test_seed_determinism():
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 16})
+    a = render(scene, 3, seed=3).image
+    b = render(scene, 3, seed=3).image
+    c = render(scene, 3, seed=4).image
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+@pytest.mark.parametrize("options,message", [
+    ({"mis": "balance"}, "--mis"), ({"chains": 0}, "--chains"), ({"light_paths": 8, "chains": 16}, "--light-paths"),
+    ({"alpha": 0.0}, "--alpha"), ({"techniques": "bpt"}, "does not take --techniques"),
+    ({"photons": 100}, "does not take --photons"),
+])
+def test_bad_options(options, message):
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})
+    with pytest.raises(SettingsError, match=message):
+        prepare(scene, method="mbe", options=options)
+
+
+@pytest.mark.convergence
+@pytest.mark.parametrize("name,ref_file,params", SCENE_REFERENCES, ids=[r[0] for r in SCENE_REFERENCES])
+def test_mbe_matches_mitsuba_on_every_bundled_scene(name, ref_file, params):
+    """Mean luminance within 1 % of Mitsuba's reference after 200 iterations at the reference's
+    resolution (measured: docs/mbe.md)."""
+    ref = read_image(REFS / ref_file)
+    scene = load_scene(SCENES / name / "scene.xml", params)
+    r = render(scene, 200, seed=1)
+    bias = mean_luminance(r.image) / mean_luminance(ref) - 1
+    print(f"mbe {name}: mean {100 * bias:+.2f} % against Mitsuba")
+    assert np.isfinite(r.image).all()
+    assert abs(bias) < 0.01
+
+
+@pytest.mark.convergence
+def test_plain_weights_agree_with_modified_and_with_vcm():
+    """The two MIS variants and vcm estimate the same image (cornell box, 64x64): means within
+    1 % of each other and of Mitsuba, and per-pixel RMSE against Mitsuba within 20 % of vcm's
+    at equal iterations."""
+    ref = read_image(REFS / "cornell-box-64.exr")
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 64})
+    images = {mis: render(scene, 100, seed=5, mis=mis).image for mis in ("modified", "plain")}
+    p = prepare(scene, method="vcm", seed=5)
+    images["vcm"] = run(p, Budget(iterations=100), quiet=True).image
+    p.release()
+    rmse = {k: float(np.sqrt(np.mean((luminance(v) - luminance(ref)) ** 2))) for k, v in images.items()}
+    means = {k: mean_luminance(v) / mean_luminance(ref) - 1 for k, v in images.items()}
+    print("means", means, "rmse", rmse)
+    assert all(abs(m) < 0.01 for m in means.values())
+    assert rmse["modified"] < 1.2 * rmse["vcm"] and rmse["plain"] < 1.2 * rmse["vcm"]
