@@ -123,13 +123,17 @@ def _add_vcm_options(parser):
     g.add_argument("--mis", choices=["modified", "plain"],
                    help="mbe: modified (default) counts the camera-only techniques b_V times, as the chains' "
                         "light subpaths have density 1/b_V; plain keeps VCM's weights (docs/mbe.md)")
+    g.add_argument("--large-step", type=float,
+                   help="mbe: probability that a chain step is a uniform proposal (default 0.3; 0: every "
+                        "chain moves every step)")
 
 
 def _method_options(args) -> dict:
     return {"photons": args.photons, "alpha": args.alpha, "radius": args.radius, "chains": args.chains,
             "target_acceptance": args.target_acceptance, "proposal_failures": args.proposal_failures,
             "expected_values": args.expected_values, "path_target": args.path_target,
-            "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis}
+            "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis,
+            "large_step": args.large_step}
 
 
 def cmd_converge(args) -> int:

@@ -91,10 +91,10 @@ def exact_bins(kind, levels, shift=0):
 
 def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="strip", drop=False, ev=False,
             adapt=True, theta=None, seed=3, target_acceptance=0.234, burn_in=0.0, seeding="copy", bootstrap=0.125,
-            shift=0):
+            shift=0, large_step=0.0):
     model = ToyModel(levels, chains, kind, shift)
     pool = ChainPool(chains, levels, 2, drop_failures=drop, expected_values=ev, burn_in=burn_in,
-                     binary_base=shift == 0, seeding=seeding, bootstrap=bootstrap)
+                     binary_base=shift == 0, seeding=seeding, bootstrap=bootstrap, large_step=large_step)
     if theta is not None:
         pool.theta.fill(theta)
     b_sum = np.zeros(levels)
@@ -213,6 +213,23 @@ def test_a_level_0_target_that_is_not_binary():
     np.testing.assert_allclose(b, [e.sum() for e in exact], rtol=0.01)
     with pytest.raises(ValueError, match="not binary"):
         ChainPool(4, 2, 2, binary_base=False)
+
+
+@pytest.mark.parametrize("levels", [2, 3])
+def test_one_move_per_step_keeps_every_target(levels):
+    """large_step 0.3 (mbe's scan: one proposal traced per step, a uniform one with probability
+    0.3, else one level's mutation; levels that did not move record their state again), with
+    resampled starts: every level samples its target and the normalisations hold."""
+    hist, b, last, _ = run_toy(levels, passes=4, steps_per_chain=800, seeding="resample", large_step=0.3)
+    exact = exact_bins("strip", levels)
+    for level in range(levels):
+        chi2, dof = chi_square(hist[level], exact[level])
+        print(f"level {level}: chi2 {chi2:.1f} on {dof} bins")
+        assert chi2 < sps.chi2.ppf(0.999, dof)
+    np.testing.assert_allclose(b, [e.sum() for e in exact], rtol=0.015)
+    c = last["counters"]
+    uniform_share = c[0, 2] / (GROUPS * 16 * 800)      # uniform proposals per step, last pass
+    assert abs(uniform_share - 0.3) < 0.005
 
 
 def test_adaptation_reaches_the_target_acceptance():

@@ -131,7 +131,7 @@ def adapt_theta(theta: float, acceptance: float, target: float, k: int) -> float
 class ChainPool:
     def __init__(self, n_chains: int, n_levels: int, dims: int, drop_failures: bool = False,
                  expected_values: bool = False, burn_in: float = 0.0, binary_base: bool = True,
-                 seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8):
+                 seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8, large_step: float = 0.0):
         self.n_chains, self.n_levels, self.dims = n_chains, n_levels, dims
         if not 0.0 <= burn_in < 1.0:
             raise ValueError(f"burn_in is a fraction of each pass in [0, 1), got {burn_in}")
@@ -149,6 +149,12 @@ class ChainPool:
         if bootstrap_hits < 1:
             raise ValueError(f"bootstrap_hits must be at least 1, got {bootstrap_hits}")
         self.bootstrap_hits = int(bootstrap_hits)
+        if not 0.0 <= large_step < 1.0:
+            raise ValueError(f"large_step is a probability in [0, 1), got {large_step}")
+        if large_step > 0.0 and expected_values:
+            raise ValueError("one move per step (large_step > 0) records no expected values")
+        self.large_step = float(large_step)
+        self.one_move = large_step > 0.0
         self.n_slots = n_chains * n_levels
         self.drop_failures = bool(drop_failures)
         self.expected_values = bool(expected_values)
@@ -305,12 +311,27 @@ class ChainPool:
         """Move 0: a uniform proposal for level 0 (the exchange with the implicit uniform chain:
         a visible one is always taken, since the swap ratio is V(u_uniform) = 1). Move 1: if it
         was invisible, a mutation of level 0. Moves 2..: a mutation of each higher level.
-        Then replica exchanges between neighbours."""
+        Then replica exchanges between neighbours.
+
+        With `large_step` > 0 a step makes one move only, one proposal traced (as in MBE's
+        reference implementations): move 0 with probability large_step, otherwise the
+        mutation of a level drawn uniformly; every level that did not move records its
+        state again. A random scan over moves that each keep their targets keeps them too."""
         zero = ti.Vector([0.0] * self.n_levels)
         uniform_visible = 0
+        chosen = -1
+        if ti.static(self.one_move):
+            r = rng.next_float(state)
+            chosen = 0
+            if r >= ti.static(self.large_step):
+                pick = ti.cast((r - ti.static(self.large_step)) / ti.static(1.0 - self.large_step) * self.n_levels,
+                               ti.i32)
+                chosen = 1 + ti.min(pick, self.n_levels - 1)
         for move in range(self.n_levels + 1):
             level = ti.max(move - 1, 0)
             s = self.level_slot[c, level]
+            if ti.static(self.one_move) and move != chosen:
+                continue
             if ti.static(self.binary_base) and move == 1 and uniform_visible:
                 continue          # H&J's loop: mutate only when the uniform proposal was invisible
             if move > 0 and not self.fresh[s]:
@@ -362,11 +383,17 @@ class ChainPool:
                 if ti.static(self.expected_values) and move > 0:
                     w_new = a
                 self._record(c, level, s, w_new)
-            elif (move > 0 or ti.static(not self.binary_base)) and \
+            elif (move > 0 or ti.static(not self.binary_base or self.one_move)) and \
                     not (ti.static(self.drop_failures) and component(t_new, level) <= 0.0):
                 # A rejected proposal repeats the current state. (A binary level 0 that rejects
                 # its uniform proposal records after the mutation that always follows.)
                 if ti.static(not self.expected_values) and component(self.T[s], level) > 0.0:
+                    self._record(c, level, s, 1.0)
+        if ti.static(self.one_move):
+            moved = ti.max(chosen - 1, 0)
+            for level in range(self.n_levels):
+                s = self.level_slot[c, level]
+                if level != moved and component(self.T[s], level) > 0.0:
                     self._record(c, level, s, 1.0)
         for level in ti.static(range(self.n_levels - 1)):
             self._exchange(c, level, state)

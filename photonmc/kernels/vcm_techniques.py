@@ -50,7 +50,8 @@ def light_to_camera(sc: ti.template(), v, c, with_weights: ti.template(), inv_co
 
 @ti.func
 def connect(sc: ti.template(), cv, wo_l, t1, t2, q: ti.f32, lv, c):
-    """Connection (s, t >= 2) of light vertex lv to camera vertex cv, visibility included."""
+    """Connection (s, t >= 2) of light vertex lv to camera vertex cv, visibility included,
+    without the camera throughput cv.beta (the caller's)."""
     total = vec3(0.0)
     to_l = lv.p - cv.p
     dist2 = to_l.dot(to_l)

@@ -91,6 +91,10 @@ DEFAULT_CHAINS = 4
 REGENERATIONS = 16     # visible uniform proposals each ladder should meet per pass
 MAX_PASS_FACTOR = 64   # a pass takes at most this many times --light-paths chain steps
 MAX_CHAINS = 1 << 16
+# One proposal per chain step, a uniform one (large step) with this probability: the value of
+# both reference implementations (algorithms.md §4.2); 0 makes every move every step.
+LARGE_STEP = 0.3
+BOOTSTRAP_HITS = 8     # uniform proposals a contribution chain's start is resampled from
 
 
 @ti.data_oriented
@@ -100,7 +104,7 @@ class Mbe(Vcm):
     default_iterations = 64
     independent_iterations = False      # the chains carry their states and mutation sizes on
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
-               "chains": None, "target_acceptance": 0.234, "mis": "modified"}
+               "chains": None, "target_acceptance": 0.234, "mis": "modified", "large_step": LARGE_STEP}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
@@ -121,7 +125,11 @@ class Mbe(Vcm):
         if not 0.0 < self.target_acceptance < 1.0:
             raise SettingsError(f"--target-acceptance must be in (0, 1), got {self.target_acceptance}")
         self.pair_dim = dimensions(self.max_light_segments)
-        self.pool = ChainPool(self.n_chains, self.n_levels, self.pair_dim + 1, seeding="resample")
+        self.large_step = float(opts["large_step"])
+        if not 0.0 <= self.large_step < 1.0:
+            raise SettingsError(f"--large-step must be in [0, 1), got {self.large_step}")
+        self.pool = ChainPool(self.n_chains, self.n_levels, self.pair_dim + 1, seeding="resample",
+                              bootstrap_hits=BOOTSTRAP_HITS, large_step=self.large_step)
         w, h, c = dscene.width, dscene.height, self.n_chains
         f = FieldGroup("mbe-chains")
         self.visit_mode = f.scalar(ti.i32, c)
@@ -182,7 +190,8 @@ class Mbe(Vcm):
         n = self.n_light
         if self.iterations > 0:
             b0 = self.b_last[0]
-            want = self.steps_last * 2 if b0 <= 0 else math.ceil(REGENERATIONS / b0) * self.n_chains
+            uniform_per_step = self.large_step if self.large_step > 0 else 1.0
+            want = self.steps_last * 2 if b0 <= 0 else math.ceil(REGENERATIONS / (b0 * uniform_per_step)) * self.n_chains
             n = max(n, min(int(want), MAX_PASS_FACTOR * self.n_light))
         self.steps_last = n
         return n
@@ -322,7 +331,7 @@ class Mbe(Vcm):
             cv = store.vertex(store.order[first + k])
             if lv.length + 1 + cv.length <= ti.static(self.max_depth):
                 t1, t2, wo_l, q = vcm_techniques.camera_frame(sc, cv)
-                total += vcm_techniques.connect(sc, cv, wo_l, t1, t2, q, lv, c)
+                total += cv.beta * vcm_techniques.connect(sc, cv, wo_l, t1, t2, q, lv, c)   # camera throughput
         if total.max() > 0.0:
             self._emit(vkey, py0, px0, total * norms[1])
             used = 1
