@@ -180,6 +180,10 @@ class ChainPool:
         self.reservoir_T = f.vector(n_levels, ti.f32, (n_chains, n_levels))
         self.reservoir_sum = f.scalar(ti.f64, (n_chains, n_levels))
         self.reservoir_hits = f.scalar(ti.i32, (n_chains, n_levels))
+        # 1 where the slot's state is the ladder's last probed proposal, accepted: a model
+        # with `adopt(ladder, slot)` may then keep what it computed for it (mbe: the splat
+        # list) instead of tracing the state again when it deposits.
+        self.adopted = f.scalar(ti.i32, self.n_slots)
         f.finalize()
         self.fields = f
         self.source = _ChainSource(self)
@@ -209,7 +213,7 @@ class ChainPool:
         uniform proposal on (an exact draw from the new target, after which Metropolis keeps
         the chain exact), and a higher level only once seeded from a fresh level below."""
         for fld in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.reservoir_sum,
-                    self.reservoir_hits):
+                    self.reservoir_hits, self.adopted):
             fld.fill(0)
         self._visit_states(model, PROBE)
 
@@ -379,6 +383,9 @@ class ChainPool:
                             self._tally(c, level, t_new, a)
             if accept:
                 self._store(s, key, t_new)
+                if ti.static(hasattr(model, "adopt")):
+                    model.adopt(c, s)
+                    self.adopted[s] = 1
                 w_new = 1.0
                 if ti.static(self.expected_values) and move > 0:
                     w_new = a
@@ -513,6 +520,7 @@ class ChainPool:
         self.ell[dst] = n
         self.T[dst] = self.T[src]
         self.fresh[dst] = 1
+        self.adopted[dst] = 0
 
     @ti.func
     def _tally(self, c, level, t, w):
@@ -537,6 +545,7 @@ class ChainPool:
         """Slot s takes the proposal named by key (its pending weight was deposited). Every
         coordinate is stored, so that a state's path is fixed even where its evaluation
         stopped early (the visibility probe stops at the first accepted vertex)."""
+        self.adopted[s] = 0
         for d in range(self.dims):
             self.u[s, d] = self.source.get(key, d)
         self.ell[s] = self.dims

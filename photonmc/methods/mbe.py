@@ -44,6 +44,7 @@ from ..kernels.mcmc import (
     N_COUNTERS,
     PROBE,
     SEEDED_COPIED,
+    STATE_MODE,
     SEEDED_RESAMPLED,
     SWAPS_ACCEPTED,
     SWAPS_TRIED,
@@ -83,6 +84,10 @@ class _ChainModel:
     @ti.func
     def visit_vertex(self, vkey: ti.i32, lv) -> ti.i32:
         return self.mbe.visit_light_vertex(self.store, self.grid, vkey, lv)
+
+    @ti.func
+    def adopt(self, ladder, slot):
+        self.mbe.adopt(ladder, slot)
 # Ladders run in parallel, one thread each. Every ladder must meet several visible uniform
 # proposals per pass (its visibility chain is exact only from the first, its contribution
 # chain starts from the bootstrap's), so more ladders mean longer passes where visibility is
@@ -94,7 +99,8 @@ MAX_CHAINS = 1 << 16
 # One proposal per chain step, a uniform one (large step) with this probability: the value of
 # both reference implementations (algorithms.md §4.2); 0 makes every move every step.
 LARGE_STEP = 0.3
-BOOTSTRAP_HITS = 8     # uniform proposals a contribution chain's start is resampled from
+BOOTSTRAP_HITS = 8
+SPLAT_LIST_CAPACITY = 1024   # entries kept per splat list (16 bytes each); longer lists are traced again     # uniform proposals a contribution chain's start is resampled from
 
 
 @ti.data_oriented
@@ -141,6 +147,14 @@ class Mbe(Vcm):
         self.pre_scale = f.scalar(ti.f32, self.n_levels)  # previous pass's level scales (see deposit)
         self.light_counters = f.scalar(ti.i64, 2)        # light subpaths traced, their segments
         self._norms = f.vector(3, ti.f32, ())            # merging, pairing, light-tracing normalisations
+        # Splat lists: one per chain slot (the state's) and one per ladder (its last probe,
+        # `adopt`ed by the slot that accepts it), so that a state deposits without being traced
+        # again. count > SPLAT_LIST_CAPACITY: overflowed, traced again.
+        n_lists = self.pool.n_slots + c
+        self.list_pixel = f.scalar(ti.i32, (n_lists, SPLAT_LIST_CAPACITY))
+        self.list_value = f.vector(3, ti.f32, (n_lists, SPLAT_LIST_CAPACITY))
+        self.list_count = f.scalar(ti.i32, n_lists)
+        self.list_stats = f.scalar(ti.i64, 2)           # deposits from a list, lists that overflowed
         f.finalize()
         self.chain_fields = f
         self._reset_chains()
@@ -172,6 +186,7 @@ class Mbe(Vcm):
         self.pre_scale.fill(1.0)
         self.light_counters.fill(0)
         self.light_frame.fill(0)
+        self.list_stats.fill(0)
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
         self.steps_last = self.n_light
         self.norms = (0.0, 0.0, 0.0)
@@ -268,11 +283,23 @@ class Mbe(Vcm):
         self.pair[vkey] = ti.min(ti.cast(source.get(key, ti.static(self.pair_dim)) * self.n_pixels, ti.i32),
                                  self.n_pixels - 1)
         self.probe_sum[vkey] = ti.Vector([0, 0, 0], ti.i64)
+        slot = ti.cast(key[0], ti.i32)
+        dims = 0
         if mode == DEPOSIT:
             self._set_deposit_weights(vkey, w, t)
-        _, dims = trace_photon(self.dscene, source, key, model, vkey, ti.static(self.max_light_segments))
-        ti.atomic_add(self.light_counters[0], 1)
-        ti.atomic_add(self.light_counters[1], photon_segments(dims))
+        if mode == DEPOSIT and key[3] == STATE_MODE and self.pool.adopted[slot] and \
+                self.list_count[slot] <= SPLAT_LIST_CAPACITY:
+            for k in range(self.list_count[slot]):         # the state's splat list, kept
+                pix = self.list_pixel[slot, k]
+                y = pix // self.dscene.width
+                self._deposit_entry(vkey, y, pix - y * self.dscene.width, self.list_value[slot, k])
+            ti.atomic_add(self.list_stats[0], 1)
+        else:
+            if mode == PROBE:
+                self.list_count[self._probe_list(vkey)] = 0
+            _, dims = trace_photon(self.dscene, source, key, model, vkey, ti.static(self.max_light_segments))
+            ti.atomic_add(self.light_counters[0], 1)
+            ti.atomic_add(self.light_counters[1], photon_segments(dims))
         out = ti.Vector([0.0] * self.n_levels)
         if mode == PROBE:
             lum = luminance(ti.cast(self.probe_sum[vkey], ti.f32) * ti.static(self.film.unit))
@@ -296,17 +323,45 @@ class Mbe(Vcm):
         self.deposit_weight[vkey] = dw
 
     @ti.func
+    def _probe_list(self, vkey) -> ti.i32:
+        """The splat list of ladder vkey's last probe."""
+        return ti.static(self.pool.n_slots) + vkey
+
+    @ti.func
+    def adopt(self, vkey, slot):
+        """ChainPool: slot accepted ladder vkey's last probe; its splat list becomes the slot's."""
+        src = self._probe_list(vkey)
+        n = self.list_count[src]
+        if n <= SPLAT_LIST_CAPACITY:
+            for k in range(n):
+                self.list_pixel[slot, k] = self.list_pixel[src, k]
+                self.list_value[slot, k] = self.list_value[src, k]
+        else:
+            ti.atomic_add(self.list_stats[1], 1)
+        self.list_count[slot] = n
+
+    @ti.func
     def _emit(self, vkey, y: ti.i32, x: ti.i32, contrib):
-        """One entry of the splat list: summed for the targets, or deposited per level."""
+        """One entry of the splat list: summed for the targets and kept, or deposited."""
         if self.visit_mode[vkey] == PROBE:
             self.probe_sum[vkey] += self.film.fixed(contrib)
+            lst = self._probe_list(vkey)
+            k = self.list_count[lst]
+            if k < SPLAT_LIST_CAPACITY:
+                self.list_pixel[lst, k] = y * self.dscene.width + x
+                self.list_value[lst, k] = contrib
+            self.list_count[lst] = k + 1
         else:
-            dw = self.deposit_weight[vkey]
-            for level in ti.static(range(self.n_levels)):
-                if dw[level] > 0.0:
-                    v = self.film.fixed(contrib * dw[level])
-                    for k in ti.static(range(3)):
-                        ti.atomic_add(self.light_frame[level, y, x][k], v[k])
+            self._deposit_entry(vkey, y, x, contrib)
+
+    @ti.func
+    def _deposit_entry(self, vkey, y: ti.i32, x: ti.i32, contrib):
+        dw = self.deposit_weight[vkey]
+        for level in ti.static(range(self.n_levels)):
+            if dw[level] > 0.0:
+                v = self.film.fixed(contrib * dw[level])
+                for k in ti.static(range(3)):
+                    ti.atomic_add(self.light_frame[level, y, x][k], v[k])
 
     @ti.func
     def visit_light_vertex(self, store: ti.template(), grid: ti.template(), vkey: ti.i32, lv) -> ti.i32:
@@ -401,6 +456,8 @@ class Mbe(Vcm):
             "swap_acceptance": (float(t[0, SWAPS_ACCEPTED]) / t[0, SWAPS_TRIED] if t[0, SWAPS_TRIED] else None),
             "levels": levels,
             "light_subpaths_traced": int(lc[0]),
+            "deposits_from_kept_splat_lists": int(self.list_stats.to_numpy()[0]),
+            "splat_lists_overflowed": int(self.list_stats.to_numpy()[1]),
             "light_segments_per_subpath": float(lc[1]) / max(int(lc[0]), 1),
             "camera_vertices_last_iteration": self.vertices_last,
             "camera_vertices_mean": self.vertices_sum / max(self.iterations, 1),
