@@ -121,8 +121,8 @@ def _add_vcm_options(parser):
     g.add_argument("--techniques", help="vcm only: vcm (default: all), bpt (no merging), bpm (merging only), "
                                         "lt (light tracing only)")
     g.add_argument("--mis", choices=["modified", "plain"],
-                   help="mbe: modified (default) counts the camera-only techniques b_V times, as the chains' "
-                        "light subpaths have density 1/b_V; plain keeps VCM's weights (docs/mbe.md)")
+                   help="mbe: plain (default) keeps VCM's weights; modified counts the camera-only techniques "
+                        "b_V times, as the chains' light subpaths have density 1/b_V (docs/mbe.md)")
     g.add_argument("--large-step", type=float,
                    help="mbe: probability that a chain step is a uniform proposal (default 0.3; 0: every "
                         "chain moves every step)")

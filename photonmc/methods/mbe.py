@@ -23,10 +23,10 @@ alone (what a Markov chain needs) and a uniform proposal pairs uniformly over th
 connection therefore counts n_pixels / N_L times (VCM pairs path i with pixel i, the same
 estimator in expectation when N_L = pixels).
 
-MIS: `--mis modified` (default) counts the camera-only techniques b_V times (kappa in
-kernels/vcm_mis.py): chain samples have density 1/b_V on the support of T_V, and where
-visibility is rare the light-based techniques deserve more weight; `--mis plain` keeps
-VCM's weights. Both are unbiased (the weights of each full path sum to one).
+MIS: `--mis plain` (default) keeps VCM's weights; `--mis modified` counts the camera-only
+techniques b_V times (kappa in kernels/vcm_mis.py): chain samples have density 1/b_V on the
+support of T_V. Both are unbiased (the weights of each full path sum to one); plain measured
+lower error on both gap-lit scenes (docs/mbe.md).
 """
 import math
 
@@ -110,7 +110,7 @@ class Mbe(Vcm):
     default_iterations = 64
     independent_iterations = False      # the chains carry their states and mutation sizes on
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
-               "chains": None, "target_acceptance": 0.234, "mis": "modified", "large_step": LARGE_STEP}
+               "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
@@ -154,7 +154,7 @@ class Mbe(Vcm):
         self.list_pixel = f.scalar(ti.i32, (n_lists, SPLAT_LIST_CAPACITY))
         self.list_value = f.vector(3, ti.f32, (n_lists, SPLAT_LIST_CAPACITY))
         self.list_count = f.scalar(ti.i32, n_lists)
-        self.list_stats = f.scalar(ti.i64, 2)           # deposits from a list, lists that overflowed
+        self.list_stats = f.scalar(ti.i64, 4)           # deposits from a list, overflows, entries and lists adopted
         f.finalize()
         self.chain_fields = f
         self._reset_chains()
@@ -332,6 +332,8 @@ class Mbe(Vcm):
         """ChainPool: slot accepted ladder vkey's last probe; its splat list becomes the slot's."""
         src = self._probe_list(vkey)
         n = self.list_count[src]
+        ti.atomic_add(self.list_stats[2], n)
+        ti.atomic_add(self.list_stats[3], 1)
         if n <= SPLAT_LIST_CAPACITY:
             for k in range(n):
                 self.list_pixel[slot, k] = self.list_pixel[src, k]
@@ -458,6 +460,7 @@ class Mbe(Vcm):
             "light_subpaths_traced": int(lc[0]),
             "deposits_from_kept_splat_lists": int(self.list_stats.to_numpy()[0]),
             "splat_lists_overflowed": int(self.list_stats.to_numpy()[1]),
+            "splat_list_mean_length": float(self.list_stats.to_numpy()[2]) / max(int(self.list_stats.to_numpy()[3]), 1),
             "light_segments_per_subpath": float(lc[1]) / max(int(lc[0]), 1),
             "camera_vertices_last_iteration": self.vertices_last,
             "camera_vertices_mean": self.vertices_sum / max(self.iterations, 1),
