@@ -71,7 +71,7 @@ BAD = {
     "nan time": (["render", *SMALL, "--time", "nan"], "--time must be a positive"),
     "zero iterations": (["render", *SMALL, "--iterations", "0"], "--iterations must be at least 1"),
     "unknown method": (["render", *SMALL, "--method", "bogus"], "unknown method 'bogus'"),
-    "planned method": (["render", *SMALL, "--method", "mbe"], "not implemented yet"),
+    "mbe large step": (["render", *SMALL, "--method", "mbe", "--large-step", "1.5"], "--large-step must be in [0, 1)"),
     "photons for pt": (["render", *SMALL, "--photons", "10"], "does not take --photons"),
     "bad alpha": (["render", *SMALL, "--method", "sppm", "--alpha", "1"], "--alpha must be in (0, 1)"),
     "negative seed": (["render", *SMALL, "--seed", "-1"], "--seed must be"),

@@ -4,9 +4,8 @@ from __future__ import annotations
 from ..errors import SettingsError
 from .base import Method, MethodSettings
 
-# All methods photonmc is designed to offer; those not yet built are refused by name.
+# The methods photonmc offers, by CLI name.
 PLANNED = ("pt", "sppm", "visibility", "spatial-tf", "vcm", "mbe")
-AVAILABLE = PLANNED
 
 
 def method_class(name: str):
@@ -28,9 +27,6 @@ def method_class(name: str):
     if name == "mbe":
         from .mbe import Mbe
         return Mbe
-    if name in PLANNED:
-        raise SettingsError(f"method '{name}' is not implemented yet in this version of photonmc "
-                            f"(available: {', '.join(AVAILABLE)})")
     raise SettingsError(f"unknown method '{name}' (choose from {', '.join(PLANNED)})")
 
 
