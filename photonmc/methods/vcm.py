@@ -29,7 +29,7 @@ from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import PointGrid
 from ..kernels.photon import MAX_PHOTON_SEGMENTS, trace_photon
-from ..kernels.sampling import onb, to_local, vec3
+from ..kernels.sampling import to_local, vec3
 from ..kernels.subpath_store import BYTES_PER_STORED_VERTEX, SubpathVertices
 from ..kernels.vcm_mis import MisConstants, PathVertex
 from ..kernels import vcm_techniques
