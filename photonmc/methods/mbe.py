@@ -189,7 +189,6 @@ class Mbe(Vcm):
         self.list_stats.fill(0)
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
         self.steps_last = self.n_light
-        self.norms = (0.0, 0.0, 0.0)
         self.b_last = np.zeros(self.n_levels)
         self.b_sum = np.zeros(self.n_levels)
         self.passes_with_b = 0
@@ -257,8 +256,7 @@ class Mbe(Vcm):
         self.work_done += steps + self.n_pixels
 
     def _set_normalizations(self, vm_normalization: float, pairing: float, steps: int):
-        self.norms = (vm_normalization, pairing, 1.0 / steps)
-        self._norms[None] = list(self.norms)
+        self._norms[None] = [vm_normalization, pairing, 1.0 / steps]
 
     # -- camera side: vcm's camera walk, storing vertices instead of using light ones ----
     @ti.func
