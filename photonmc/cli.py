@@ -55,7 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
     cb.add_argument("--time", type=float, help="render seconds per method (compilation excluded)")
     cb.add_argument("--iterations", type=int, help="iterations per method")
     c.add_argument("--out", default="converge-out", help="output directory (CSV, plot, table, images)")
-    c.add_argument("--seed", type=int, default=0)
+    cs = c.add_mutually_exclusive_group()
+    cs.add_argument("--seed", type=int, default=0)
+    cs.add_argument("--seeds", type=_seed_list, help="comma-separated seeds, e.g. 0,1,2,3: one render per method "
+                                                     "and seed, figures as mean and spread over seeds")
     c.add_argument("--threads", type=int)
     c.add_argument("--max-depth", type=int)
     c.add_argument("--photons", type=_photons, help="photon paths per iteration, or auto")
@@ -136,6 +139,16 @@ def _method_options(args) -> dict:
             "large_step": args.large_step}
 
 
+def _seed_list(text: str) -> list[int]:
+    try:
+        seeds = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a comma-separated list of integers") from None
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"'{text}': give distinct seeds")
+    return seeds
+
+
 def cmd_converge(args) -> int:
     from . import runtime
     from .converge import converge
@@ -155,7 +168,7 @@ def cmd_converge(args) -> int:
     runtime.init("cpu", args.threads)
     options = _method_options(args)
     _, table = converge(scene, Path(args.scene).parent.name or args.scene, methods, args.reference, budget,
-                        args.out, seed=args.seed, options=options, max_depth=args.max_depth,
+                        args.out, seeds=args.seeds or [args.seed], options=options, max_depth=args.max_depth,
                         log=lambda msg: print(msg, file=sys.stderr))
     print(table)
     print(f"wrote {args.out}/convergence.csv, convergence.png, convergence.md", file=sys.stderr)

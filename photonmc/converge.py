@@ -5,6 +5,10 @@ compilation is excluded. At checkpoints spaced geometrically in time (or iterati
 current image is compared with the reference; the comparison's own cost is excluded from
 the clock. Writes convergence.csv, convergence.png (log-log error against time) and
 convergence.md (final figures and the equal-time ranking), plus each method's final image.
+
+With several seeds (`--seeds 0,1,2,3`) every method renders once per seed: the table gives
+the mean and spread over seeds, and the per-pixel relative-error spread is estimated from
+the seeds with the single-render noise removed (`metrics.relmse_spread_over_seeds`).
 """
 from __future__ import annotations
 
@@ -21,13 +25,13 @@ from .errors import PhotonmcError
 from .methods import method_class
 from .loop import Budget, prepare
 
-RELMSE_EPS = 1e-2          # relMSE = mean(d^2 / (ref^2 + eps)), eps in the image's units
 CHECKPOINT_GROWTH = 1.5
 
 
 @dataclass
 class Checkpoint:
     method: str
+    seed: int
     elapsed: float
     iterations: int
     rmse: float
@@ -47,6 +51,7 @@ def _schedule(total: float, first: float):
 
 def measure(scene, method: str, reference: np.ndarray, budget: Budget, seed: int = 0, options=None,
             max_depth=None) -> tuple[list[Checkpoint], np.ndarray, dict]:
+    eps = metrics.relmse_epsilon(reference)
     p = prepare(scene, method=method, seed=seed, options=options, max_depth=max_depth)
     try:
         m = p.method
@@ -69,10 +74,10 @@ def measure(scene, method: str, reference: np.ndarray, budget: Budget, seed: int
                 while pending and progress >= pending[0] - 1e-12:
                     pending.pop(0)
                 img = m.image()
-                points.append(Checkpoint(method, clock, m.iterations, metrics.rmse(img, reference),
-                                         metrics.relmse(img, reference, RELMSE_EPS),
+                points.append(Checkpoint(method, seed, clock, m.iterations, metrics.rmse(img, reference),
+                                         metrics.relmse(img, reference, eps),
                                          metrics.mean_luminance_bias(img, reference),
-                                         metrics.relmse_spread(img, reference, RELMSE_EPS)))
+                                         metrics.relmse_spread(img, reference, eps)))
             if not pending:
                 break
         return points, m.image().astype(np.float32), m.stats()
@@ -94,24 +99,28 @@ def slope(points: list[Checkpoint], key="rmse") -> float | None:
 def write_csv(path: Path, points: list[Checkpoint]):
     with open(path, "w", newline="") as f:
         out = csv.writer(f)
-        out.writerow(["method", "elapsed_s", "iterations", "rmse", "relmse", "mean_luminance_bias", "relmse_cv"])
+        out.writerow(["method", "seed", "elapsed_s", "iterations", "rmse", "relmse", "mean_luminance_bias",
+                      "relmse_cv"])
         for p in points:
-            out.writerow([p.method, f"{p.elapsed:.6g}", p.iterations, f"{p.rmse:.6g}", f"{p.relmse:.6g}",
+            out.writerow([p.method, p.seed, f"{p.elapsed:.6g}", p.iterations, f"{p.rmse:.6g}", f"{p.relmse:.6g}",
                           f"{p.bias:.6g}", f"{p.relmse_cv:.6g}"])
 
 
-def write_plot(path: Path, by_method: dict, title: str):
+def write_plot(path: Path, by_method: dict, title: str, eps: float):
+    """by_method: name -> one list of checkpoints per seed (one curve each, one colour per method)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for name, pts in by_method.items():
-        t = [p.elapsed for p in pts]
-        axes[0].loglog(t, [p.rmse for p in pts], "o-", label=name, markersize=3)
-        axes[1].loglog(t, [p.relmse for p in pts], "o-", label=name, markersize=3)
+    for i, (name, runs) in enumerate(by_method.items()):
+        for k, pts in enumerate(runs):
+            t = [p.elapsed for p in pts]
+            style = dict(color=f"C{i}", markersize=3, label=name if k == 0 else None)
+            axes[0].loglog(t, [p.rmse for p in pts], "o-", **style)
+            axes[1].loglog(t, [p.relmse for p in pts], "o-", **style)
     axes[0].set_ylabel("RMSE")
-    axes[1].set_ylabel(f"relMSE (eps={RELMSE_EPS:g})")
+    axes[1].set_ylabel(f"relMSE (eps={eps:.3g})")
     for ax in axes:
         ax.set_xlabel("render time [s] (compilation excluded)")
         ax.grid(True, which="both", alpha=0.3)
@@ -122,19 +131,42 @@ def write_plot(path: Path, by_method: dict, title: str):
     plt.close(fig)
 
 
-def write_table(path: Path, by_method: dict, header: str) -> str:
-    finals = {name: pts[-1] for name, pts in by_method.items() if pts}
-    # Equal-time ranking: every method's error interpolated (log-log) at the shortest final time.
-    t_eq = min(p.elapsed for p in finals.values())
-    at_eq = {name: _interpolate(pts, t_eq) for name, pts in by_method.items()}
-    lines = [header, "",
-             "| method | time [s] | iterations | RMSE | relMSE | per-pixel relMSE CV | mean-luminance bias "
-             "| RMSE slope vs time |",
-             "|---|---|---|---|---|---|---|---|"]
-    for name, p in finals.items():
-        s = slope(by_method[name])
-        lines.append(f"| {name} | {p.elapsed:.2f} | {p.iterations} | {p.rmse:.4g} | {p.relmse:.4g} | {p.relmse_cv:.2f} | "
-                     f"{100 * p.bias:+.2f} % | {'n/a' if s is None else f'{s:.2f}'} |")
+def _mean_spread(values) -> str:
+    """'m' for one value, 'm +- s' (sample std over seeds) for several."""
+    v = np.asarray(values, np.float64)
+    return f"{v.mean():.4g}" if len(v) < 2 else f"{v.mean():.4g} +- {v.std(ddof=1):.2g}"
+
+
+def write_table(path: Path, by_method: dict, header: str, seeds_spread: dict | None = None) -> str:
+    """by_method: name -> one list of checkpoints per seed; seeds_spread: name -> the per-pixel
+    relMSE spread over seeds (None with one seed)."""
+    finals = {name: [pts[-1] for pts in runs if pts] for name, runs in by_method.items()}
+    finals = {name: f for name, f in finals.items() if f}
+    # Equal-time ranking: every run's error interpolated (log-log) at the shortest final time,
+    # averaged over seeds.
+    t_eq = min(p.elapsed for f in finals.values() for p in f)
+    at_eq = {name: float(np.mean([_interpolate(pts, t_eq) for pts in runs if pts]))
+             for name, runs in by_method.items()}
+    n_seeds = max(len(f) for f in finals.values())
+    lines = [header, ""]
+    if n_seeds > 1:
+        lines += [f"Mean +- standard deviation over {n_seeds} seeds. \"per-pixel relMSE CV, seeds\": the spread over "
+                  "pixels of each pixel's expected relMSE, single-render noise removed.", ""]
+    cv_head = " per-pixel relMSE CV, seeds |" if n_seeds > 1 else ""
+    lines += ["| method | time [s] | iterations | RMSE | relMSE | per-pixel relMSE CV, one render |" + cv_head
+              + " mean-luminance bias | RMSE slope vs time |",
+              "|---|---|---|---|---|---|" + ("---|" if n_seeds > 1 else "") + "---|---|"]
+    for name, f in finals.items():
+        slopes = [s for s in (slope(pts) for pts in by_method[name]) if s is not None]
+        cv = ""
+        if n_seeds > 1:
+            c = (seeds_spread or {}).get(name)
+            cv = f" {'n/a' if c is None else f'{c:.2f}'} |"
+        lines.append(f"| {name} | {np.mean([p.elapsed for p in f]):.2f} | {_mean_spread([p.iterations for p in f])} "
+                     f"| {_mean_spread([p.rmse for p in f])} | {_mean_spread([p.relmse for p in f])} "
+                     f"| {np.mean([p.relmse_cv for p in f]):.2f} |{cv} "
+                     f"{100 * np.mean([p.bias for p in f]):+.2f} % | "
+                     f"{'n/a' if not slopes else f'{np.mean(slopes):.2f}'} |")
     lines += ["", f"Equal-time ranking at {t_eq:.2f} s (RMSE, lower is better):", ""]
     for rank, (name, e) in enumerate(sorted(at_eq.items(), key=lambda kv: kv[1]), 1):
         lines.append(f"{rank}. {name}: RMSE {e:.4g}")
@@ -151,25 +183,36 @@ def _interpolate(points: list[Checkpoint], t: float) -> float:
     return float(math.exp(np.interp(math.log(t), np.log(ts), np.log(np.maximum(es, 1e-300)))))
 
 
-def converge(scene, scene_label: str, methods: list[str], reference_path, budget: Budget, out_dir, seed=0,
+def converge(scene, scene_label: str, methods: list[str], reference_path, budget: Budget, out_dir, seeds=(0,),
              options=None, max_depth=None, log=print):
     reference = imageio.read_image(reference_path)
+    eps = metrics.relmse_epsilon(reference)
+    seeds = list(seeds)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    by_method, all_points = {}, []
+    by_method, spread, all_points = {}, {}, []
     for name in methods:
-        log(f"converge: {name} ...")
         # each method takes the options it knows (e.g. --chains goes to the guided methods only)
         known = method_class(name).OPTIONS
         opts = {k: v for k, v in (options or {}).items() if v is not None and k in known}
-        points, image, stats = measure(scene, name, reference, budget, seed=seed, options=opts, max_depth=max_depth)
-        by_method[name] = points
-        all_points += points
-        imageio.write_image(out_dir / f"{name}.exr", image, {"method": name, "seed": seed,
-                                                             "iterations": stats["iterations"]})
+        runs, images = [], []
+        for seed in seeds:
+            log(f"converge: {name}, seed {seed} ...")
+            points, image, stats = measure(scene, name, reference, budget, seed=seed, options=opts,
+                                           max_depth=max_depth)
+            runs.append(points)
+            images.append(image)
+            all_points += points
+            suffix = "" if len(seeds) == 1 else f"-seed{seed}"
+            imageio.write_image(out_dir / f"{name}{suffix}.exr", image, {"method": name, "seed": seed,
+                                                                         "iterations": stats["iterations"]})
+        by_method[name] = runs
+        spread[name] = metrics.relmse_spread_over_seeds(images, reference, eps)
     write_csv(out_dir / "convergence.csv", all_points)
-    write_plot(out_dir / "convergence.png", by_method, f"{scene_label} vs {Path(reference_path).name}")
+    write_plot(out_dir / "convergence.png", by_method, f"{scene_label} vs {Path(reference_path).name}", eps)
     budget_text = f"{budget.time:g} s" if budget.time is not None else f"{budget.iterations} iterations"
+    seed_text = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {','.join(map(str, seeds))}"
     text = write_table(out_dir / "convergence.md", by_method,
-                       f"## {scene_label}: {', '.join(methods)} ({budget_text} each, seed {seed})")
+                       f"## {scene_label}: {', '.join(methods)} ({budget_text} each, {seed_text}; "
+                       f"relMSE eps = ({metrics.RELMSE_FLOOR:g} x reference mean luminance)^2 = {eps:.3g})", spread)
     return by_method, text

@@ -1,7 +1,8 @@
 """Image error metrics shared by tests, `converge` and the tools.
 
-relMSE is mean(|d|^2 / (ref^2 + eps)) per channel, with eps stated by the caller; note the
-square is taken once (one public implementation squares it twice, see algorithms.md §11).
+relMSE is mean(|d|^2 / (ref^2 + eps)) per channel; note the square is taken once (one public
+implementation squares it twice). `relmse_epsilon` ties eps to the reference (docs/convergence.md,
+"Relative error").
 """
 import numpy as np
 
@@ -21,18 +22,59 @@ def rmse(img: np.ndarray, ref: np.ndarray) -> float:
     return float(np.sqrt(np.mean(d * d)))
 
 
-def relmse(img: np.ndarray, ref: np.ndarray, eps: float = 1e-2) -> float:
+RELMSE_FLOOR = 0.1     # eps = (RELMSE_FLOOR * mean luminance of the reference)^2
+
+
+def relmse_epsilon(ref: np.ndarray) -> float:
+    """eps of relMSE for this reference: (0.1 * its mean luminance)^2.
+
+    The customary eps = 0.01 (e.g. Rousselle et al. 2011) presumes an image of mean ~1: on
+    an image whose pixels are mostly below 0.1 it turns relMSE into MSE / 0.01. Scaling it
+    with the reference keeps that meaning at any exposure (relMSE no longer changes when the
+    scene's radiance is scaled) and counts a pixel's error relative to its own value down to
+    a tenth of the image's mean, relative to that floor below it."""
+    m = mean_luminance(ref)
+    return float((RELMSE_FLOOR * m) ** 2) if m > 0 else 1e-2
+
+
+def relmse(img: np.ndarray, ref: np.ndarray, eps: float) -> float:
     d = np.asarray(img, np.float64) - np.asarray(ref, np.float64)
     return float(np.mean(d * d / (np.asarray(ref, np.float64) ** 2 + eps)))
 
 
-def relmse_spread(img: np.ndarray, ref: np.ndarray, eps: float = 1e-2) -> float:
-    """Coefficient of variation (std / mean over pixels) of per-pixel relMSE: 0 when every
-    pixel has the same relative error (the spatial target's goal, Gruson et al. 2016)."""
-    d = np.asarray(img, np.float64) - np.asarray(ref, np.float64)
-    per_pixel = np.mean(d * d / (np.asarray(ref, np.float64) ** 2 + eps), axis=-1)
+def relmse_spread(img: np.ndarray, ref: np.ndarray, eps: float) -> float:
+    """Coefficient of variation (std / mean over pixels) of one render's per-pixel relMSE.
+    Its floor is about sqrt(2) even when every pixel has the same expected error; see
+    `relmse_spread_over_seeds` for the spread of the expectations."""
+    per_pixel = per_pixel_relmse(img, ref, eps)
     m = per_pixel.mean()
     return float(per_pixel.std() / m) if m > 0 else 0.0
+
+
+def per_pixel_relmse(img: np.ndarray, ref: np.ndarray, eps: float) -> np.ndarray:
+    d = np.asarray(img, np.float64) - np.asarray(ref, np.float64)
+    return np.mean(d * d / (np.asarray(ref, np.float64) ** 2 + eps), axis=-1)
+
+
+def relmse_spread_over_seeds(images, ref: np.ndarray, eps: float) -> float | None:
+    """Spread (std / mean over pixels) of each pixel's *expected* relMSE, from renders with
+    independent seeds.
+
+    One render's per-pixel squared error is its expectation times a chi-square-like factor,
+    whose own spread (about sqrt(2) per pixel) swamps the spread of the expectations that
+    Gruson et al.'s spatial target is meant to flatten. With K seeds, the per-pixel mean over
+    seeds m(p) has var_p(m) = var_p(E e) + mean_p(var(e)) / K; the second term is estimated
+    from the seeds' sample variance and subtracted. None for fewer than 2 images."""
+    if len(images) < 2:
+        return None
+    e = np.stack([per_pixel_relmse(img, ref, eps) for img in images])        # (K, H, W)
+    k = e.shape[0]
+    m = e.mean(axis=0)
+    noise = e.var(axis=0, ddof=1).mean() / k
+    mean = m.mean()
+    if mean <= 0:
+        return 0.0
+    return float(np.sqrt(max(0.0, m.var() - noise)) / mean)
 
 
 def mean_luminance_bias(img: np.ndarray, ref: np.ndarray) -> float:

@@ -2,6 +2,7 @@
 import csv
 
 import numpy as np
+import pytest
 
 from photonmc.cli import main
 from photonmc.imageio import read_image, write_image
@@ -43,3 +44,33 @@ def test_converge_rejects_a_reference_of_the_wrong_size(tmp_path, capsys):
                "--iterations", "2", "--out", str(tmp_path / "c")])
     assert rc == 2
     assert "reference is 8x8 but the scene renders 16x16" in capsys.readouterr().err
+
+
+def test_converge_over_seeds_reports_means_and_the_spread(tmp_path):
+    from photonmc import load_scene
+    p = prepare(load_scene(CORNELL, {"res": 16}), method="pt", seed=11)
+    ref = run(p, Budget(iterations=256), quiet=True).image
+    p.release()
+    write_image(tmp_path / "ref.exr", ref)
+    out = tmp_path / "conv"
+    rc = main(["converge", CORNELL, "-D", "res=16", "--methods", "pt", "--reference", str(tmp_path / "ref.exr"),
+               "--iterations", "4", "--seeds", "3,4,5", "--out", str(out)])
+    assert rc == 0
+    rows = list(csv.DictReader(open(out / "convergence.csv")))
+    assert {int(r["seed"]) for r in rows} == {3, 4, 5}
+    finals = {int(r["seed"]): r for r in rows if int(r["iterations"]) == 4}
+    images = [read_image(out / f"pt-seed{k}.exr") for k in (3, 4, 5)]
+    assert not np.array_equal(images[0], images[1])            # independent seeds
+    table = (out / "convergence.md").read_text()
+    assert "seeds 3,4,5" in table and "per-pixel relMSE CV, seeds" in table
+    mean_rmse = np.mean([float(finals[k]["rmse"]) for k in (3, 4, 5)])
+    assert f"| {mean_rmse:.4g} +- " in table
+
+
+def test_converge_refuses_repeated_seeds(tmp_path, capsys):
+    write_image(tmp_path / "ref.exr", np.zeros((16, 16, 3)))
+    with pytest.raises(SystemExit) as e:
+        main(["converge", CORNELL, "-D", "res=16", "--methods", "pt", "--reference", str(tmp_path / "ref.exr"),
+              "--iterations", "2", "--seeds", "1,1"])
+    assert e.value.code == 2
+    assert "give distinct seeds" in capsys.readouterr().err
