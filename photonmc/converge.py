@@ -137,9 +137,12 @@ def _mean_spread(values) -> str:
     return f"{v.mean():.4g}" if len(v) < 2 else f"{v.mean():.4g} +- {v.std(ddof=1):.2g}"
 
 
-def write_table(path: Path, by_method: dict, header: str, seeds_spread: dict | None = None) -> str:
+def write_table(path: Path, by_method: dict, header: str, seeds_spread: dict | None = None,
+                reference_noise_mse: float = 0.0) -> str:
     """by_method: name -> one list of checkpoints per seed; seeds_spread: name -> the per-pixel
-    relMSE spread over seeds (None with one seed)."""
+    relMSE spread over seeds (None with one seed); reference_noise_mse: the reference's own
+    expected squared error (from its header), removed from the RMSE in quadrature in an extra
+    column, since an image equal to the truth would still show it."""
     finals = {name: [pts[-1] for pts in runs if pts] for name, runs in by_method.items()}
     finals = {name: f for name, f in finals.items() if f}
     # Equal-time ranking: every run's error interpolated (log-log) at the shortest final time,
@@ -153,17 +156,22 @@ def write_table(path: Path, by_method: dict, header: str, seeds_spread: dict | N
         lines += [f"Mean +- standard deviation over {n_seeds} seeds. \"per-pixel relMSE CV, seeds\": the spread over "
                   "pixels of each pixel's expected relMSE, single-render noise removed.", ""]
     cv_head = " per-pixel relMSE CV, seeds |" if n_seeds > 1 else ""
-    lines += ["| method | time [s] | iterations | RMSE | relMSE | per-pixel relMSE CV, one render |" + cv_head
-              + " mean-luminance bias | RMSE slope vs time |",
-              "|---|---|---|---|---|---|" + ("---|" if n_seeds > 1 else "") + "---|---|"]
+    noise_head = " RMSE, reference noise removed |" if reference_noise_mse > 0 else ""
+    lines += ["| method | time [s] | iterations | RMSE |" + noise_head + " relMSE | per-pixel relMSE CV, one render |"
+              + cv_head + " mean-luminance bias | RMSE slope vs time |",
+              "|---|---|---|---|" + ("---|" if noise_head else "") + "---|---|" + ("---|" if n_seeds > 1 else "")
+              + "---|---|"]
     for name, f in finals.items():
         slopes = [s for s in (slope(pts) for pts in by_method[name]) if s is not None]
         cv = ""
         if n_seeds > 1:
             c = (seeds_spread or {}).get(name)
             cv = f" {'n/a' if c is None else f'{c:.2f}'} |"
+        denoised = ""
+        if reference_noise_mse > 0:
+            denoised = f" {_mean_spread([math.sqrt(max(0.0, p.rmse ** 2 - reference_noise_mse)) for p in f])} |"
         lines.append(f"| {name} | {np.mean([p.elapsed for p in f]):.2f} | {_mean_spread([p.iterations for p in f])} "
-                     f"| {_mean_spread([p.rmse for p in f])} | {_mean_spread([p.relmse for p in f])} "
+                     f"| {_mean_spread([p.rmse for p in f])} |{denoised} {_mean_spread([p.relmse for p in f])} "
                      f"| {np.mean([p.relmse_cv for p in f]):.2f} |{cv} "
                      f"{100 * np.mean([p.bias for p in f]):+.2f} % | "
                      f"{'n/a' if not slopes else f'{np.mean(slopes):.2f}'} |")
@@ -186,6 +194,7 @@ def _interpolate(points: list[Checkpoint], t: float) -> float:
 def converge(scene, scene_label: str, methods: list[str], reference_path, budget: Budget, out_dir, seeds=(0,),
              options=None, max_depth=None, log=print):
     reference = imageio.read_image(reference_path)
+    reference_noise = float(imageio.read_metadata(reference_path).get("noise_mse", 0.0))
     eps = metrics.relmse_epsilon(reference)
     seeds = list(seeds)
     out_dir = Path(out_dir)
@@ -214,5 +223,7 @@ def converge(scene, scene_label: str, methods: list[str], reference_path, budget
     seed_text = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {','.join(map(str, seeds))}"
     text = write_table(out_dir / "convergence.md", by_method,
                        f"## {scene_label}: {', '.join(methods)} ({budget_text} each, {seed_text}; "
-                       f"relMSE eps = ({metrics.RELMSE_FLOOR:g} x reference mean luminance)^2 = {eps:.3g})", spread)
+                       f"relMSE eps = ({metrics.RELMSE_FLOOR:g} x reference mean luminance)^2 = {eps:.3g}"
+                       + (f"; the reference's own RMSE {math.sqrt(reference_noise):.3g}" if reference_noise > 0 else "")
+                       + ")", spread, reference_noise)
     return by_method, text

@@ -85,3 +85,13 @@ def read_metadata(path) -> dict:
     spec = inp.spec()
     inp.close()
     return {a.name.split(":", 1)[1]: a.value for a in spec.extra_attribs if a.name.startswith("photonmc:")}
+
+
+def read_metadata(path) -> dict:
+    """The photonmc:* attributes of an image's header (e.g. a reference's noise_mse), as strings."""
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise PhotonmcError(f"cannot read image '{path}': {oiio.geterror()}")
+    spec = inp.spec()
+    inp.close()
+    return {a.name.split(":", 1)[1]: str(a.value) for a in spec.extra_attribs if a.name.startswith("photonmc:")}
