@@ -79,6 +79,7 @@ def read_image(path) -> np.ndarray:
 
 
 def read_metadata(path) -> dict:
+    """The photonmc:* attributes of an image's header (provenance; a reference's noise_mse)."""
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise PhotonmcError(f"cannot read image '{path}': {oiio.geterror()}")
@@ -86,12 +87,3 @@ def read_metadata(path) -> dict:
     inp.close()
     return {a.name.split(":", 1)[1]: a.value for a in spec.extra_attribs if a.name.startswith("photonmc:")}
 
-
-def read_metadata(path) -> dict:
-    """The photonmc:* attributes of an image's header (e.g. a reference's noise_mse), as strings."""
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise PhotonmcError(f"cannot read image '{path}': {oiio.geterror()}")
-    spec = inp.spec()
-    inp.close()
-    return {a.name.split(":", 1)[1]: str(a.value) for a in spec.extra_attribs if a.name.startswith("photonmc:")}
