@@ -101,15 +101,15 @@ MAX_CHAINS = 1 << 16
 # One proposal per chain step, a uniform one (large step) with this probability: the value of
 # both reference implementations (algorithms.md §4.2); 0 makes every move every step.
 LARGE_STEP = 0.3
-BOOTSTRAP_HITS = 8
+BOOTSTRAP_HITS = 8       # visible uniform proposals a contribution chain's start is resampled from
 # The contribution chain makes small steps only and mixes slowly from its resampled start:
 # recorded from that start, the gap-lit room's contribution level came out 3 % low (whole
 # image -3.3 % against vcm's -1.9 %; the bias shrank the later the recording began). So the
 # ladders discard the first half of each pass, as spatial-tf's do (LADDER_BURN_IN), and the
 # bootstrap ends by the first quarter, so that the chain mixes for a quarter of the pass or
-# more before it records (whole image -1.5 +- 0.3 %; docs/mbe.md, "Start-up").
+# more before it records (whole image -1.9 %, -1.6 % for two seeds; docs/mbe.md, "Start-up").
 BOOTSTRAP_FRACTION = 0.25
-SPLAT_LIST_CAPACITY = 1024   # entries kept per splat list (16 bytes each); longer lists are traced again     # uniform proposals a contribution chain's start is resampled from
+SPLAT_LIST_CAPACITY = 1024   # entries kept per splat list (16 bytes each); longer lists are traced again
 
 
 @ti.data_oriented
