@@ -22,8 +22,10 @@ CASES = [          # method, iterations, tolerance on the mean
     ("vcm", 400, 0.04),
     ("visibility", 100, 0.05),
     ("spatial-tf", 60, 0.06),
-    ("mbe", 400, 0.06),
 ]
+# mbe is not here: compiling it for one more scene costs CI about a minute, and its rare-light
+# behaviour is tested on the closet room and the gap close-up (tests/test_mbe.py); measured in
+# this room, 400 iterations: -3.7 % (docs/convergence.md, "The attic room").
 
 
 @pytest.mark.convergence
