@@ -27,6 +27,15 @@ def _photons(text: str):
         raise argparse.ArgumentTypeError(f"expected a number of photons or 'auto', got '{text}'") from None
 
 
+def _camera_paths(text: str):
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of camera paths or 'auto', got '{text}'") from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="photonmc", description="Photon-mapping renderer with MCMC-guided photons.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -62,6 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--threads", type=int)
     c.add_argument("--max-depth", type=int)
     c.add_argument("--photons", type=_photons, help="photon paths per iteration, or auto")
+    c.add_argument("--camera-paths", type=_camera_paths, help="camera paths per pixel per pass, or auto")
     c.add_argument("--alpha", type=float)
     c.add_argument("--radius", type=float)
     _add_guiding_options(c)
@@ -87,6 +97,9 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
     pm.add_argument("--photons", type=_photons, help="photon paths per iteration (default: one per pixel); "
                     "auto (sppm): balanced against the camera pass from the error and work of each, "
                     "measured as it renders (docs/effort.md)")
+    pm.add_argument("--camera-paths", type=_camera_paths,
+                    help="camera paths per pixel per pass, or auto: as many as the photon pass is worth, "
+                         "from the same balance (default: 1 for sppm, auto for visibility and spatial-tf)")
     pm.add_argument("--alpha", type=float, help="fraction of new photons kept by the radius update (default 2/3)")
     pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
                                                  "(default: 2 pixel footprints at each pixel's first hit)")
@@ -132,7 +145,7 @@ def _add_vcm_options(parser):
 
 
 def _method_options(args) -> dict:
-    return {"photons": args.photons, "alpha": args.alpha, "radius": args.radius, "chains": args.chains,
+    return {"photons": args.photons, "camera_paths": args.camera_paths, "alpha": args.alpha, "radius": args.radius, "chains": args.chains,
             "target_acceptance": args.target_acceptance, "proposal_failures": args.proposal_failures,
             "expected_values": args.expected_values, "path_target": args.path_target,
             "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis,

@@ -31,6 +31,30 @@ def test_balance_reaches_the_optimum_of_a_known_error_model():
         assert abs(seen[-1] / best - 1) < 0.02, (start, best, seen)
 
 
+def test_camera_paths_settle_at_the_photons_over_the_optimum_of_a_known_model():
+    """A pass whose photon count is set elsewhere (the guided methods' passes last until
+    their chains regenerate): observations made exactly from V = V_c/K + V_p/n, with K camera
+    paths per pixel costing K C_c. K settles at n / n*, n* = sqrt(alpha C_c/c_p V_p/V_c) the
+    photons the balance would pick for one camera path, moving at most 2x a step and held
+    within the cap; from K = 1 and from the cap."""
+    v_c, v_p, camera_work, segments, alpha, n = 0.02, 50.0, 3000.0, 3.0, 2.0 / 3.0, 40000
+    best = n / math.sqrt(alpha * camera_work / segments * v_p / v_c)       # 31.0
+    for start in (1, 64):
+        balance, k, last_k = EffortBalance(1000, n, alpha), start, None
+        for _ in range(30):
+            spread = v_c * (1 / k + 1 / (last_k or k)) + v_p * 2 / n
+            balance.observe(n, spread, v_p, 1.0, camera_work * k, segments * n, camera_paths=k)
+            last_k, k = k, balance.next_camera_paths(n, 64)
+            assert last_k / 2 <= k <= 2 * last_k and 1 <= k <= 64
+        assert abs(k - best) <= 1, (start, best, k)
+        assert balance.shares()[0] == pytest.approx(v_c)
+    # A cap below the optimum holds K there; a pass of few photons gets one camera path.
+    balance = EffortBalance(1000, n, alpha)
+    for _ in range(10):
+        balance.observe(n, 2 * v_c + v_p * 2 / n, v_p, 1.0, camera_work, segments * n)
+    assert balance.next_camera_paths(n, 8) == 2 and balance.next_camera_paths(100, 64) == 1
+
+
 def test_no_photon_seen_holds_photons_and_no_camera_error_raises_them():
     b = EffortBalance(100, 100, 0.7)
     for _ in range(3):
@@ -45,10 +69,10 @@ def test_no_photon_seen_holds_photons_and_no_camera_error_raises_them():
     assert b.photons <= 64 * 100
 
 
-def _estimates(params: dict, photons: int, iterations: int, seed: int):
+def _estimates(params: dict, photons: int, iterations: int, seed: int, camera_paths: int = 1):
     # alpha near 1: the radii stay put, so V_p does not change with the photon count.
     job = Job(scene=str(SCENES / params.pop("scene") / "scene.xml"), params=params, method="sppm", seed=seed,
-              options={"photons": photons, "alpha": 0.999})
+              options={"photons": photons, "alpha": 0.999, "camera_paths": camera_paths})
     p = job.prepare()
     try:
         for _ in range(iterations):
@@ -72,6 +96,16 @@ def test_split_estimates_agree_across_photon_counts():
     assert few[1] == pytest.approx(many[1], rel=0.3)
     assert scarce_few[1] == pytest.approx(scarce_many[1], rel=0.3)
     assert scarce_many[0] > 0
+
+
+def test_camera_variance_is_per_camera_path_whatever_their_number():
+    """With K camera paths per pixel the camera side's variance per iteration is V_c / K
+    (independent paths), and the balance's estimate, which divides that out, agrees at K = 1
+    and K = 4 on the Cornell box (camera error dominant)."""
+    cornell = {"scene": "cornell-box", "res": "16"}
+    one, four = _estimates(dict(cornell), 1024, 300, 5), _estimates(dict(cornell), 1024, 300, 6, camera_paths=4)
+    print(f"cornell V_c, V_p with 1 camera path per pixel {one}, with 4 {four}")
+    assert four[0] == pytest.approx(one[0], rel=0.3)
 
 
 def test_balanced_sppm_gives_photons_to_a_photon_starved_view():

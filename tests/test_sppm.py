@@ -96,6 +96,26 @@ def test_sphere_furnace(write_scene, depth):
     assert np.abs(lum - expected).max() < 6 * spread
 
 
+def test_several_camera_paths_per_pass(write_scene):
+    """K camera paths per pixel share each photon pass (docs/effort.md): in the furnace the
+    answer stays the analytic one, and the radius shrinks with photons per point, not with K.
+    (The pixels' spread barely falls there: the K points of a pixel gather nearly the same
+    photons, and the furnace's error is photon-side; the camera side's 1/K is tested in
+    test_effort.py.)"""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    expected = furnace_expectation(3)
+    radius = {}
+    for k in (1, 4):
+        p = prepare(scene, method="sppm", max_depth=3, options={"photons": 4096, "camera_paths": k})
+        r = run(p, Budget(iterations=60), quiet=True)
+        p.release()
+        lum = luminance(r.image)
+        assert abs(lum.mean() - expected) < 5 * lum.std() / np.sqrt(lum.size) + 0.002 * expected, (k, lum.mean())
+        assert r.stats["camera_paths_per_pixel"] == k
+        radius[k] = r.stats["mean_radius"]
+    assert radius[4] == pytest.approx(radius[1], rel=0.1)
+
+
 # Largest acceptable log-log slope of RMSE against iterations. On the smooth Cornell box the
 # error is variance-dominated (about -0.5 early, -1/3 asymptotically for alpha = 2/3). At the
 # caustic's sharp edges density-estimation bias is proportional to R, which shrinks as
@@ -165,6 +185,8 @@ def test_one_photon_per_iteration_and_iterations_without_deposits(write_scene):
 
 @pytest.mark.parametrize("options,message", [
     ({"photons": 0}, "--photons"), ({"alpha": 1.5}, "--alpha"), ({"radius": -1.0}, "--radius"),
+    ({"camera_paths": 0}, "--camera-paths must be a number from 1 to 64 or 'auto'"),
+    ({"camera_paths": 65}, "--camera-paths"), ({"camera_paths": "many"}, "--camera-paths"),
 ])
 def test_bad_options(options, message):
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})

@@ -4,6 +4,9 @@ Rebuilt every iteration: cell size = 2 x the largest radius, so each point's bal
 at most 2x2x2 cells; the point is listed in each of them and a query at x visits only the
 cell containing x. Build = count per cell (atomics), exclusive prefix sum, fill.
 Hash collisions only cost time: callers test the actual distance.
+A build may cover only the first `count` points (sppm's camera paths per pass vary, within
+fields sized for the most); the table then uses the smallest power of two >= 2 count of its
+slots, so that a small pass does not pay for clearing and scanning the largest one's table.
 """
 import taichi as ti
 
@@ -31,17 +34,23 @@ class HashGrid:
         self.entries = self.fields.scalar(ti.i32, entries_per_point * n_points)
         self.cell_size = self.fields.scalar(ti.f32)
         self.max_radius = self.fields.scalar(ti.f32)
+        self.slot_mask = self.fields.scalar(ti.i32)       # slots in use - 1
         self.fields.finalize()
 
     def release(self):
         self.fields.release()
 
-    def build(self, pos, radius, valid):
-        """pos (vec3), radius (f32), valid (i32) are fields indexed like the points."""
-        self._bounds(pos, radius, valid)
-        self._count(pos, radius, valid)
-        self._prefix_sum()
-        self._fill(pos, radius, valid)
+    def build(self, pos, radius, valid, count: int | None = None):
+        """pos (vec3), radius (f32), valid (i32) are fields indexed like the points; only the
+        first `count` points (default: all) are read."""
+        count = self.n_points if count is None else int(count)
+        slots = 1
+        while slots < 2 * count and slots < self.table_size:
+            slots *= 2
+        self._bounds(pos, radius, valid, count, slots)
+        self._count(pos, radius, valid, count)
+        self._prefix_sum(slots)
+        self._fill(pos, radius, valid, count)
 
     @ti.func
     def cell_of(self, x):
@@ -49,15 +58,16 @@ class HashGrid:
 
     @ti.func
     def slot(self, cell) -> ti.i32:
-        return ti.cast(_hash(cell) & ti.u32(self.table_size - 1), ti.i32)
+        return ti.cast(_hash(cell) & ti.cast(self.slot_mask[None], ti.u32), ti.i32)
 
     @ti.kernel
-    def _bounds(self, pos: ti.template(), radius: ti.template(), valid: ti.template()):
+    def _bounds(self, pos: ti.template(), radius: ti.template(), valid: ti.template(), count: ti.i32, slots: ti.i32):
         self.max_radius[None] = 0.0
-        for i in range(self.n_points):
+        self.slot_mask[None] = slots - 1
+        for i in range(count):
             if valid[i]:
                 ti.atomic_max(self.max_radius[None], radius[i])
-        for h in range(self.table_size):
+        for h in range(slots):
             self.cell_count[h] = 0
             self.cell_fill[h] = 0
 
@@ -82,26 +92,26 @@ class HashGrid:
         return slots, n
 
     @ti.kernel
-    def _count(self, pos: ti.template(), radius: ti.template(), valid: ti.template()):
+    def _count(self, pos: ti.template(), radius: ti.template(), valid: ti.template(), count: ti.i32):
         self.cell_size[None] = ti.max(2.0 * self.max_radius[None], 1e-30)
-        for i in range(self.n_points):
+        for i in range(count):
             if valid[i]:
                 slots, n = self._slots_of(pos[i], radius[i])
                 for k in range(n):
                     ti.atomic_add(self.cell_count[slots[k]], 1)
 
     @ti.kernel
-    def _prefix_sum(self):
+    def _prefix_sum(self, slots: ti.i32):
         ti.loop_config(serialize=True)
-        for h in range(self.table_size):
+        for h in range(slots):
             if h == 0:
                 self.cell_start[0] = 0
             else:
                 self.cell_start[h] = self.cell_start[h - 1] + self.cell_count[h - 1]
 
     @ti.kernel
-    def _fill(self, pos: ti.template(), radius: ti.template(), valid: ti.template()):
-        for i in range(self.n_points):
+    def _fill(self, pos: ti.template(), radius: ti.template(), valid: ti.template(), count: ti.i32):
+        for i in range(count):
             if valid[i]:
                 slots, n = self._slots_of(pos[i], radius[i])
                 for k in range(n):
@@ -141,13 +151,14 @@ class PointGrid(HashGrid):
     def build(self, pos, radius: float, valid):
         self._setup(radius)
         self._count_points(pos, valid)
-        self._prefix_sum()
+        self._prefix_sum(self.table_size)
         self._fill_points(pos, valid)
 
     @ti.kernel
     def _setup(self, radius: ti.f32):
         self.max_radius[None] = radius
         self.cell_size[None] = ti.max(2.0 * radius, 1e-30)
+        self.slot_mask[None] = self.table_size - 1
         for h in range(self.table_size):
             self.cell_count[h] = 0
             self.cell_fill[h] = 0

@@ -20,6 +20,14 @@ pixels of luminance, so the balance minimises the image's MSE. Work is counted, 
 timed, so that a seed still gives one image: C_c in rays cast by the camera pass plus one
 per measurement point put in the grid, c_p in photon segments per path (each a ray cast
 and a gather).
+
+A pass may also trace K camera paths per pixel (sppm.py), which divides V_c by K at K times
+the camera work; only the ratio n / K matters, so where the photon count is set otherwise
+(the guided methods' passes last until their chains regenerate) the balance picks
+K = n / n*, n* being the photons it would choose for one camera path. Each photon deposited
+into a measurement point is work too (a BSDF evaluation and atomics, about DEPOSIT_WORK
+segments), and at a fixed photon count it grows with K, so for that choice it counts as camera
+work.
 """
 from __future__ import annotations
 
@@ -31,6 +39,10 @@ MAX_CHANGE = 2.0         # photons per pass change by at most this factor per it
 MAX_PER_PIXEL = 64       # at most this many photons per pixel per pass (iteration granularity)
 HISTORY = 256            # iterations the estimates look back over (bounded work per iteration)
 TRIM = 32                # V_c leaves out the largest 1/TRIM of its history
+# Cost of one deposit into a measurement point, in photon segments: 1.3 and 1.8 measured
+# (visibility at 64x64 with 1, 4 and 16 camera paths per pixel on light-gap and the held-out
+# closet: photon-pass time against segments and deposits; docs/effort.md).
+DEPOSIT_WORK = 1.5
 
 
 class EffortBalance:
@@ -42,27 +54,36 @@ class EffortBalance:
         self.photon_variances_r2 = []        # per-iteration V_p x mean R^2 (V_p grows as 1/R^2)
         self.radius_sq = None                # mean R^2 of the last pass
         self.sum_camera_work = 0.0
+        self.sum_camera_paths = 0.0          # camera paths per pixel, over all iterations
+        self.sum_deposits = 0.0
         self.sum_photon_work = 0.0           # photon segments
         self.sum_photons = 0.0
         self.samples = 0                     # iterations with a previous one to compare with
         self.observed = 0                    # all iterations
         self.last_photons = None
+        self.last_camera_paths = None
 
     def observe(self, photons: int, spread: float, half_difference: float, radius_sq: float,
-                camera_work: float, photon_work: float) -> None:
-        """One iteration of `photons` photon paths: `spread` = mean over pixels of (this
-        iteration's estimate - the last one's)^2, `half_difference` = mean of n (t_a - t_b)^2 / 4,
-        `radius_sq` = mean squared gather radius of the pass."""
+                camera_work: float, photon_work: float, camera_paths: int = 1, deposits: float = 0.0) -> None:
+        """One iteration of `photons` photon paths and `camera_paths` camera paths per pixel:
+        `spread` = mean over pixels of (this iteration's estimate - the last one's)^2,
+        `half_difference` = mean of n (t_a - t_b)^2 / 4, `radius_sq` = mean squared gather
+        radius of the pass, `deposits` the photons deposited into its measurement points."""
         self.observed += 1
+        self.sum_deposits += deposits
         self.sum_camera_work += camera_work
+        self.sum_camera_paths += camera_paths
         self.sum_photon_work += photon_work
         self.sum_photons += photons
         last, self.last_photons = self.last_photons, photons
+        last_k, self.last_camera_paths = self.last_camera_paths, camera_paths
         if last is None or not radius_sq > 0:
             return
-        # Two iterations' estimates are independent: E[(e_i - e_j)^2] = 2 V_c + V_p (1/n_i + 1/n_j).
+        # Two iterations' estimates are independent:
+        # E[(e_i - e_j)^2] = V_c (1/K_i + 1/K_j) + V_p (1/n_i + 1/n_j).
         v_p = half_difference
-        self.camera_variances.append(0.5 * (spread - v_p * (1.0 / photons + 1.0 / last)))
+        self.camera_variances.append((spread - v_p * (1.0 / photons + 1.0 / last))
+                                     / (1.0 / camera_paths + 1.0 / last_k))
         self.photon_variances_r2.append(v_p * radius_sq)
         del self.camera_variances[:-HISTORY], self.photon_variances_r2[:-HISTORY]
         self.radius_sq = radius_sq
@@ -81,12 +102,38 @@ class EffortBalance:
         keep = len(camera) - len(camera) // TRIM
         return float(camera[:keep].mean()), float(np.mean(self.photon_variances_r2)) / self.radius_sq
 
+    def _optimum(self):
+        """n* for one camera path per pixel, inf where no camera-side error is measured yet,
+        or None where there is nothing to go by."""
+        shares = self.shares()
+        if shares is None or self.sum_photons <= 0:
+            return None
+        v_c, v_p = shares
+        # per camera path per pixel, with the deposits into its MPs
+        camera_work = (self.sum_camera_work + DEPOSIT_WORK * self.sum_deposits) / self.sum_camera_paths
+        photon_work = self.sum_photon_work / self.sum_photons
+        if v_p <= 0.0 or photon_work <= 0.0:
+            return None
+        if v_c <= 0.0:
+            return math.inf
+        return math.sqrt(self.alpha * camera_work / photon_work * v_p / v_c)
+
+    def next_camera_paths(self, photons: int, most: int) -> int:
+        """Camera paths per pixel for a pass of `photons` photon paths: photons / n*, within
+        [1, most] and at most MAX_CHANGE times the last pass's. Held while nothing is measured."""
+        k = self.last_camera_paths or 1
+        best = self._optimum()
+        if best is None:
+            return k
+        target = min(max(photons / best, k / MAX_CHANGE), k * MAX_CHANGE)
+        return int(min(max(round(target), 1), most))
+
     def next_photons(self) -> int:
         shares = self.shares()
         if shares is None or self.sum_photons <= 0:
             return self.photons
         v_c, v_p = shares
-        camera_work = self.sum_camera_work / self.observed
+        camera_work = self.sum_camera_work / self.sum_camera_paths
         photon_work = self.sum_photon_work / self.sum_photons
         if v_p <= 0.0 or photon_work <= 0.0:
             # No photon has reached a measurement point yet: that says the photons are scarce,

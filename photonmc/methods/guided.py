@@ -68,6 +68,10 @@ class GuidedPhotons(Sppm):
     OPTIONS = {**Sppm.OPTIONS, "chains": None, "target_acceptance": 0.234, "proposal_failures": "keep",
                "expected_values": False}
     path_target_sum = False
+    # Passes last until every chain regenerates (_steps_this_pass), so where the error is
+    # camera-side they would starve the camera passes: the effort balance chooses how many
+    # camera paths per pixel share each photon pass (docs/effort.md).
+    default_camera_paths = "auto"
 
     def __init__(self, dscene, settings):
         if settings.options.get("photons") == "auto":
@@ -94,7 +98,7 @@ class GuidedPhotons(Sppm):
                               self.drop_failures, self.expected_values,
                               burn_in=LADDER_BURN_IN if self.n_levels > 1 else 0.0)
         f = FieldGroup(f"guided-{self.name}")
-        L, n, c = self.n_levels, self.n_pixels, self.n_chains
+        L, n, c = self.n_levels, self.n_mp, self.n_chains
         self.target_scratch = f.vector(L, ti.f32, c)
         self.visit_mode = f.scalar(ti.i32, c)
         self.flux_weight = f.vector(L, ti.f32, c)
@@ -207,8 +211,7 @@ class GuidedPhotons(Sppm):
     def _iterate(self):
         it = self.iterations
         n_p = self._steps_this_pass()
-        self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle)
-        self.grid.build(self.mp_p, self.mp_radius, self.mp_valid)
+        self._measurement_points(it)
         self._prepare_targets()
         self.pool.begin_pass(self)
         self.pool.run(self, self.seed_u32, it, n_p)
@@ -313,7 +316,8 @@ class SpatialTarget(GuidedPhotons):
     n_levels = 3
     level_names = ("visibility", "inverse-area", "spatial")
     OPTIONS = {**GuidedPhotons.OPTIONS, "path_target": "max"}
-    TRANSIENT = Sppm.TRANSIENT + ("_valid", "_pos", "_area")     # this pass's MPs, set by _prepare_targets
+    # this pass's MPs and per-MP targets, set by _prepare_targets, and their hit counts
+    TRANSIENT = Sppm.TRANSIENT + ("_valid", "_pos", "_area", "inv_area", "importance", "hits")
 
     def __init__(self, dscene, settings):
         path_target = {**self.OPTIONS, **{k: v for k, v in settings.options.items() if v is not None}}["path_target"]
@@ -333,8 +337,8 @@ class SpatialTarget(GuidedPhotons):
         valid = self.mp_valid.to_numpy().astype(bool)
         pos = self.mp_p.to_numpy()[valid].astype(np.float64)
         area = math.pi * self.mp_radius.to_numpy()[valid].astype(np.float64) ** 2
-        inv_area = np.zeros(self.n_pixels, np.float32)
-        importance = np.zeros(self.n_pixels, np.float32)
+        inv_area = np.zeros(self.n_mp, np.float32)
+        importance = np.zeros(self.n_mp, np.float32)
         if valid.any():
             ia = 1.0 / (area / area.max() + EPS_AREA)
             rho = self.clusters.density(pos)
@@ -353,7 +357,9 @@ class SpatialTarget(GuidedPhotons):
     def _after_pass(self, level_scale):
         hits = self.hits.to_numpy().astype(np.float64) / FIXED_ONE
         per_mp = (hits * level_scale[:, None]).sum(axis=0)
-        samples = self.M.to_numpy().astype(np.float64)
+        # A photon deposits into each of a pixel's K MPs: count it once per pixel, so that
+        # a cluster is trusted after as many photons whatever K (clusters.py, min_samples).
+        samples = self.M.to_numpy().astype(np.float64) / self.camera_paths
         v = self._valid
         self.clusters.accumulate(self._pos, self._area, per_mp[v], samples[v])
         self.hits.fill(0)

@@ -12,6 +12,12 @@ Each iteration:
    flux accumulated in the D form D += W Phi / (pi R^2) (equal to the tau form, §1.3).
 Image: Ld / I + D / N_e, with N_e photons emitted in all iterations.
 
+A pass may trace K camera paths per pixel (`--camera-paths`, docs/effort.md): K measurement
+points per pixel, each gathering the same photons, sharing the pixel's radius and averaged
+into one estimate per pass. The guided methods need long photon passes (every chain must
+regenerate, guided.py); where the error is camera-side K > 1 buys back the camera passes
+that such a pass would otherwise cost.
+
 Per-iteration flux is accumulated in 64-bit fixed point (photon power relative to the
 scene's total emitted power, 2^-32 resolution): integer atomics are order-independent, so
 a seed gives a bit-identical image whatever the thread scheduling.
@@ -37,6 +43,8 @@ from .effort import EffortBalance
 
 FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flux
 PI = math.pi                      # use as ti.f64(PI): a bare literal is a float32 constant (default_fp)
+MP_BUDGET = 1 << 20               # measurement points that --camera-paths auto may allocate
+MAX_CAMERA_PATHS = 64             # and at most this many camera paths per pixel per pass
 # One camera path's accumulators: direct light so far, its pixel, the initial-radius rule.
 CameraPath = ti.types.struct(direct=vec3, pixel=ti.i32, r_abs=ti.f32, r_per_dist=ti.f32, rays=ti.i32)
 
@@ -55,8 +63,13 @@ class Sppm(Method):
     name = "sppm"
     work_unit = "photons"
     default_iterations = 100
-    OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False}
-    TRANSIENT = ("grid",)     # rebuilt over the MPs every iteration (state.py)
+    OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False,
+               "camera_paths": None}
+    default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
+    # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the
+    # pass's measurement points with their per-pass accumulators (up to MP_BUDGET points).
+    TRANSIENT = ("grid", "mp_p", "mp_n", "mp_wo", "mp_W", "mp_bsdf", "mp_depth", "mp_valid", "mp_radius",
+                 "mp_direct", "M", "phi", "phi_odd")
     n_levels = 1          # flux accumulators per measurement point (one per Markov-chain level)
     # What trace_photon hands this visitor: vertices after the first segment (direct light is
     # the camera pass's), without the VCM partial sums.
@@ -75,6 +88,7 @@ class Sppm(Method):
             raise SettingsError(f"--photons must be a number of photons or 'auto', got '{opts['photons']}'")
         self.photons_per_iteration = int(self.n_pixels if opts["photons"] in (None, "auto") else opts["photons"])
         self.alpha = float(opts["alpha"])
+        self._set_camera_paths(opts["camera_paths"])
         self.effort = EffortBalance(self.n_pixels, self.photons_per_iteration, self.alpha)   # measured either way (stats)
         if not 1 <= self.photons_per_iteration <= 1 << 28:
             raise SettingsError(f"--photons must be between 1 and 2^28, got {self.photons_per_iteration}")
@@ -95,8 +109,9 @@ class Sppm(Method):
         self.photon_paths_used = 0
 
         f = FieldGroup(f"sppm-{self.n_levels}-levels")
-        n = self.n_pixels
-        # This iteration's measurement points (one per pixel).
+        n = self.n_mp = self.n_pixels * self.max_camera_paths
+        # This iteration's measurement points: MP j is camera path j // n_pixels of pixel
+        # j % n_pixels (one per pixel where camera_paths is 1).
         self.mp_p = f.vector(3, ti.f32, n)
         self.mp_n = f.vector(3, ti.f32, n)
         self.mp_wo = f.vector(3, ti.f32, n)
@@ -105,28 +120,46 @@ class Sppm(Method):
         self.mp_depth = f.scalar(ti.i32, n)
         self.mp_valid = f.scalar(ti.i32, n)
         self.mp_radius = f.scalar(ti.f32, n)
+        self.mp_direct = f.vector(3, ti.f64, n)        # the camera path's emission and direct light
         # Per-pixel progressive statistics, float64.
+        n = self.n_pixels
         self.R = f.scalar(ti.f64, n)
         self.N = f.scalar(ti.f64, n)
         self.D = f.vector(3, ti.f64, n)
         self.tau = f.vector(3, ti.f64, n)
         self.Ld = f.vector(3, ti.f64, n)
         self.ld_pass = f.vector(3, ti.f64, n)           # this iteration's direct light
-        # Per-iteration accumulators (fixed point) and counters.
-        self.M = f.scalar(ti.i64, n)
-        self.phi = f.vector(3, ti.i64, (self.n_levels, n))
-        self.phi_odd = f.vector(3, ti.i64, (self.n_levels, n))   # the odd half's part of phi (effort.py)
+        # Per-iteration accumulators (fixed point), per MP, and counters.
+        self.M = f.scalar(ti.i64, self.n_mp)
+        self.phi = f.vector(3, ti.i64, (self.n_levels, self.n_mp))
+        self.phi_odd = f.vector(3, ti.i64, (self.n_levels, self.n_mp))   # the odd half's part of phi (effort.py)
         self.estimate_last = f.scalar(ti.f64, n)    # per pixel: the last iteration's own estimate
         self.spread = f.scalar(ti.f64, n)           # per pixel: (this estimate - the last one)^2
         self.half_difference = f.scalar(ti.f64, n)  # per pixel: n (t_a - t_b)^2 / 4
-        self.effort_sums = f.scalar(ti.f64, 6)      # their sums, and the pass's counted work
+        self.deposits = f.scalar(ti.f64, n)         # per pixel: photons deposited into its MPs this pass
+        self.effort_sums = f.scalar(ti.f64, 7)      # their sums, and the pass's counted work
         self.level_scale = f.scalar(ti.f64, self.n_levels)     # fixed point -> flux, per level
         # 0: photon paths that deposited, 1: non-finite direct samples, 2: camera rays this
         # pass, 3: photon segments this pass (the work the effort balance counts)
         self.counters = f.scalar(ti.i64, 4)
         f.finalize()
         self.fields = f
-        self.grid = HashGrid(n)
+        self.grid = HashGrid(self.n_mp)
+
+    def _set_camera_paths(self, value):
+        """--camera-paths: a number, or auto (chosen by the effort balance per pass, between 1
+        and MAX_CAMERA_PATHS, within MP_BUDGET measurement points)."""
+        value = self.default_camera_paths if value is None else value
+        self.camera_paths_auto = value == "auto"
+        self.camera_paths_last = 1
+        if self.camera_paths_auto:
+            self.max_camera_paths = max(1, min(MAX_CAMERA_PATHS, MP_BUDGET // self.n_pixels))
+            self.camera_paths = 1
+        else:
+            if not isinstance(value, (int, np.integer)) or not 1 <= value <= MAX_CAMERA_PATHS:
+                raise SettingsError(f"--camera-paths must be a number from 1 to {MAX_CAMERA_PATHS} or 'auto', "
+                                    f"got '{value}'")
+            self.max_camera_paths = self.camera_paths = int(value)
 
     def release(self):
         self.grid.release()
@@ -137,6 +170,8 @@ class Sppm(Method):
                   self.mp_valid):
             f.fill(0)
         self.photons_emitted = 0
+        if self.camera_paths_auto:
+            self.camera_paths = 1
         if self.balanced:
             self.photons_per_iteration = self.n_pixels
         if self.effort is not None:
@@ -146,45 +181,74 @@ class Sppm(Method):
     def _iterate(self):
         it = self.iterations
         n_p = self.photons_per_iteration
-        self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle)
-        self.grid.build(self.mp_p, self.mp_radius, self.mp_valid)
+        self._measurement_points(it)
         self._photon_pass(self.seed_u32, it, n_p, self.max_photon_segments)
         self.level_scale[0] = self.power_scale / FIXED_ONE
         self._update_balanced(n_p)
         self.photons_emitted += n_p
         self.work_done += n_p
 
+    def _measurement_points(self, it):
+        """The camera pass of iteration `it` (camera_paths paths per pixel) and the grid over its MPs."""
+        k = self.camera_paths
+        # MPs past this pass's are cleared up to the last pass's, which may have used more.
+        in_use = max(k, self.camera_paths_last) * self.n_pixels
+        self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle,
+                          k, in_use)
+        self._init_radii(k)
+        self.grid.build(self.mp_p, self.mp_radius, self.mp_valid, in_use)
+        self.camera_paths_last = k
+
     def _update_balanced(self, n_p: int):
         """The progressive update, and the effort balance's view of this iteration."""
-        self._update(self.alpha, n_p)
+        k = self.camera_paths
+        self._update(self.alpha, n_p, k)
         if self.effort is None:
             return
         self._effort_sums()
-        spread, half, radius_sq, valid, camera_rays, segments = self.effort_sums.to_numpy()
+        spread, half, radius_sq, valid, camera_rays, segments, deposits = self.effort_sums.to_numpy()
         n = float(self.n_pixels)
         self.effort.observe(n_p, spread / n, half / n, radius_sq / max(valid, 1.0),
-                            camera_rays + n, segments)      # rays, and the grid over the MPs
+                            camera_rays + k * n, segments, camera_paths=k,   # rays, and the grid over the MPs
+                            deposits=deposits)
         if self.balanced:
             self.photons_per_iteration = self.effort.next_photons()
+        if self.camera_paths_auto:
+            self.camera_paths = self.effort.next_camera_paths(n_p, self.max_camera_paths)
 
     @ti.kernel
-    def _camera_pass(self, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32, r_abs: ti.f32, r_per_dist: ti.f32):
+    def _camera_pass(self, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32, r_abs: ti.f32, r_per_dist: ti.f32,
+                     camera_paths: ti.i32, in_use: ti.i32):
         sc = self.dscene
-        for y, x in ti.ndrange(sc.height, sc.width):
-            i = y * sc.width + x
-            state = rng.seed(seed, ti.u32(i), iteration * ti.u32(2))
-            o, d = sc.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
-            self.mp_valid[i] = 0
-            acc = CameraPath(direct=vec3(0.0), pixel=i, r_abs=r_abs, r_per_dist=r_per_dist, rays=1)
-            camera_walk(sc, o, d, state, max_depth, self, acc)
-            direct = acc.direct
-            self.ld_pass[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-            if (direct == direct).all() and direct.max() < ti.math.inf:
-                self.Ld[i] += ti.cast(direct, ti.f64)
-                self.ld_pass[i] = ti.cast(direct, ti.f64)
-            else:
-                ti.atomic_add(self.counters[1], 1)
-            ti.atomic_add(self.counters[2], acc.rays)
+        for j in range(in_use):
+            self.mp_valid[j] = 0
+            self.mp_direct[j] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            if j < camera_paths * self.n_pixels:
+                i = j % self.n_pixels
+                state = rng.seed(seed, ti.u32(j), iteration * ti.u32(2))
+                o, d = sc.camera_ray(i % sc.width, i // sc.width, rng.next_float(state), rng.next_float(state))
+                acc = CameraPath(direct=vec3(0.0), pixel=j, r_abs=r_abs, r_per_dist=r_per_dist, rays=1)
+                camera_walk(sc, o, d, state, max_depth, self, acc)
+                direct = acc.direct
+                if (direct == direct).all() and direct.max() < ti.math.inf:
+                    self.mp_direct[j] = ti.cast(direct, ti.f64)
+                else:
+                    ti.atomic_add(self.counters[1], 1)
+                ti.atomic_add(self.counters[2], acc.rays)
+
+    @ti.kernel
+    def _init_radii(self, camera_paths: ti.i32):
+        """A pixel's first MP sets its initial radius (its first valid camera path's, in path
+        order, so that the choice does not depend on thread timing); every MP of a pixel
+        gathers with the pixel's radius."""
+        n = self.n_pixels
+        for i in range(n):
+            for s in range(camera_paths):
+                j = s * n + i
+                if self.mp_valid[j]:
+                    if self.R[i] == 0.0:
+                        self.R[i] = ti.max(ti.cast(self.mp_radius[j], ti.f64), 1e-30)
+                    self.mp_radius[j] = ti.cast(self.R[i], ti.f32)
 
     # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
     roulette = THROUGHPUT_ROULETTE
@@ -197,7 +261,7 @@ class Sppm(Method):
     @ti.func
     def at_vertex(self, acc: ti.template(), w, s, b: ti.i32, n, t1, t2, wo, wo_l, state: ti.template()) -> ti.i32:
         """The first non-delta vertex: next-event direct light, and the pixel's measurement point."""
-        i = acc.pixel
+        i = acc.pixel           # the MP's index
         acc.direct += w.beta * next_event(self.dscene, s.p, s.ng, b, wo_l, n, t1, t2, state, False)
         acc.rays = w.length + 1           # the segments to here and the shadow ray
         self.mp_p[i] = s.p
@@ -207,12 +271,10 @@ class Sppm(Method):
         self.mp_bsdf[i] = b
         self.mp_depth[i] = w.length
         self.mp_valid[i] = 1
-        if self.R[i] == 0.0:      # first MP of this pixel: initial radius
-            r0 = acc.r_abs
-            if r0 <= 0.0:
-                r0 = acc.r_per_dist * w.travelled
-            self.R[i] = ti.max(ti.cast(r0, ti.f64), 1e-30)
-        self.mp_radius[i] = ti.cast(self.R[i], ti.f32)
+        r0 = acc.r_abs            # the initial radius, should this be the pixel's first MP (_init_radii)
+        if r0 <= 0.0:
+            r0 = acc.r_per_dist * w.travelled
+        self.mp_radius[i] = r0
         return STOP
 
     @ti.func
@@ -274,28 +336,54 @@ class Sppm(Method):
         return ok
 
     @ti.kernel
-    def _update(self, alpha: ti.f64, n_p: ti.f64):
+    def _update(self, alpha: ti.f64, n_p: ti.f64, camera_paths: ti.i32):
         lum = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
-        for i in range(self.n_pixels):
-            m = ti.cast(self.M[i], ti.f64)
+        n = self.n_pixels
+        k = ti.cast(camera_paths, ti.f64)
+        for i in range(n):
+            # The pixel's camera paths, in path order (f64 sums in a fixed order): their direct
+            # light, photons per valid MP, and W Phi.
+            ld = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            m = ti.f64(0.0)
+            valid = 0
+            w_phi = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            w_phi_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            for s in range(camera_paths):
+                j = s * n + i
+                ld += self.mp_direct[j]
+                if self.mp_valid[j]:
+                    valid += 1
+                    m += ti.cast(self.M[j], ti.f64)
+                    phi = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+                    phi_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+                    for level in ti.static(range(self.n_levels)):
+                        phi += ti.cast(self.phi[level, j], ti.f64) * self.level_scale[level]
+                        phi_odd += ti.cast(self.phi_odd[level, j], ti.f64) * self.level_scale[level]
+                    w = ti.cast(self.mp_W[j], ti.f64)
+                    w_phi += w * phi
+                    w_phi_odd += w * phi_odd
+                self.M[j] = 0
+                for level in ti.static(range(self.n_levels)):
+                    self.phi[level, j] = ti.Vector([0, 0, 0], ti.i64)
+                    self.phi_odd[level, j] = ti.Vector([0, 0, 0], ti.i64)
+            self.deposits[i] = m
+            ld /= k
+            self.Ld[i] += ld
+            self.ld_pass[i] = ld
             # This iteration's estimate of the pixel (direct + its photons alone) and of each
             # half of its photons, for the effort balance (effort.py), before the update.
             inc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             inc_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-            if self.mp_valid[i] and m > 0.0:
+            if valid > 0:
+                m /= ti.cast(valid, ti.f64)     # photons per MP: the radius follows photon density, not K
+            if m > 0.0:
                 r = self.R[i]
                 n_old = self.N[i]
                 n_new = n_old + alpha * m
                 r_new = r * ti.sqrt(n_new / (n_old + m))
-                phi = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-                phi_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-                for level in ti.static(range(self.n_levels)):
-                    phi += ti.cast(self.phi[level, i], ti.f64) * self.level_scale[level]
-                    phi_odd += ti.cast(self.phi_odd[level, i], ti.f64) * self.level_scale[level]
-                w = ti.cast(self.mp_W[i], ti.f64)
-                w_phi = w * phi
+                w_phi /= k
                 inc = w_phi / (ti.f64(PI) * r * r)
-                inc_odd = w * phi_odd / (ti.f64(PI) * r * r)
+                inc_odd = w_phi_odd / k / (ti.f64(PI) * r * r)
                 self.D[i] += inc                                        # D form (algorithms.md §1.3)
                 self.tau[i] = (self.tau[i] + w_phi) * (r_new * r_new) / (r * r)   # tau form, kept for the test
                 self.N[i] = n_new
@@ -305,21 +393,18 @@ class Sppm(Method):
             self.estimate_last[i] = estimate
             halves = lum.dot(2.0 * (inc - inc_odd) / n_p) - lum.dot(2.0 * inc_odd / n_p)
             self.half_difference[i] = n_p * halves * halves / 4.0
-            self.M[i] = 0
-            for level in ti.static(range(self.n_levels)):
-                self.phi[level, i] = ti.Vector([0, 0, 0], ti.i64)
-                self.phi_odd[level, i] = ti.Vector([0, 0, 0], ti.i64)
 
     @ti.kernel
     def _effort_sums(self):
         """Sums over pixels for the effort balance, in one fixed order (a serial loop), so
         that the photon count it picks, and so the image, does not depend on thread timing."""
-        sums = ti.Vector([0.0] * 4, ti.f64)
+        sums = ti.Vector([0.0] * 5, ti.f64)
         ti.loop_config(serialize=True)
         for i in range(self.n_pixels):
             sums[0] += self.spread[i]
             sums[1] += self.half_difference[i]
-            if self.mp_valid[i]:
+            sums[4] += self.deposits[i]
+            if self.mp_valid[i]:       # the pixel's first camera path stands for its radius
                 r = ti.cast(self.mp_radius[i], ti.f64)
                 sums[2] += r * r
                 sums[3] += 1.0
@@ -327,6 +412,7 @@ class Sppm(Method):
             self.effort_sums[k] = sums[k]
         self.effort_sums[4] = ti.cast(self.counters[2], ti.f64)
         self.effort_sums[5] = ti.cast(self.counters[3], ti.f64)
+        self.effort_sums[6] = sums[4]
         self.counters[2] = 0
         self.counters[3] = 0
 
@@ -353,6 +439,8 @@ class Sppm(Method):
         r = self.R.to_numpy()
         seen = r > 0
         return {"photons_per_iteration": self.photons_per_iteration, "photons_emitted": self.photons_emitted,
+                "camera_paths_per_pixel": self.camera_paths,
+                "camera_paths_per_pixel_auto": self.camera_paths_auto,
                 "fraction_of_photon_paths_depositing": float(c[0]) / max(self.photons_emitted, 1),
                 "mean_radius": float(r[seen].mean()) if seen.any() else None,
                 "alpha": self.alpha, "nonfinite_samples_dropped": int(c[1]),
