@@ -18,22 +18,20 @@ def _define(text: str):
     return name, value
 
 
-def _photons(text: str):
-    if text == "auto":
-        return text
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of photons or 'auto', got '{text}'") from None
+def _number_or_auto(what: str):
+    """An argparse type: an integer, or the word auto (--photons, --camera-paths)."""
+    def parse(text: str):
+        if text == "auto":
+            return text
+        try:
+            return int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number of {what} or 'auto', got '{text}'") from None
+    return parse
 
 
-def _camera_paths(text: str):
-    if text == "auto":
-        return text
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of camera paths or 'auto', got '{text}'") from None
+_photons = _number_or_auto("photons")
+_camera_paths = _number_or_auto("camera paths")
 
 
 def build_parser() -> argparse.ArgumentParser:
