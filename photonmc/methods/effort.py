@@ -102,15 +102,20 @@ class EffortBalance:
         keep = len(camera) - len(camera) // TRIM
         return float(camera[:keep].mean()), float(np.mean(self.photon_variances_r2)) / self.radius_sq
 
-    def _optimum(self):
+    def _optimum(self, deposits_as_camera_work: bool):
         """n* for one camera path per pixel, inf where no camera-side error is measured yet,
-        or None where there is nothing to go by."""
+        or None where there is nothing to go by: no estimate yet, or no photon has reached a
+        measurement point (that says the photons are scarce, not useless). Deposits count as
+        camera work for the choice of K at a fixed photon count; sppm's choice of photons
+        does not count them (not measured to help, docs/effort.md)."""
         shares = self.shares()
         if shares is None or self.sum_photons <= 0:
             return None
         v_c, v_p = shares
-        # per camera path per pixel, with the deposits into its MPs
-        camera_work = (self.sum_camera_work + DEPOSIT_WORK * self.sum_deposits) / self.sum_camera_paths
+        camera_work = self.sum_camera_work      # per camera path per pixel below
+        if deposits_as_camera_work:
+            camera_work += DEPOSIT_WORK * self.sum_deposits
+        camera_work /= self.sum_camera_paths
         photon_work = self.sum_photon_work / self.sum_photons
         if v_p <= 0.0 or photon_work <= 0.0:
             return None
@@ -122,28 +127,20 @@ class EffortBalance:
         """Camera paths per pixel for a pass of `photons` photon paths: photons / n*, within
         [1, most] and at most MAX_CHANGE times the last pass's. Held while nothing is measured."""
         k = self.last_camera_paths or 1
-        best = self._optimum()
+        best = self._optimum(deposits_as_camera_work=True)
         if best is None:
             return k
         target = min(max(photons / best, k / MAX_CHANGE), k * MAX_CHANGE)
         return int(min(max(round(target), 1), most))
 
     def next_photons(self) -> int:
-        shares = self.shares()
-        if shares is None or self.sum_photons <= 0:
+        """Photons for the next pass: n*, at most MAX_CHANGE times the last pass's (so twice
+        as many where no camera-side error is measured yet); held where there is nothing to
+        go by, since fewer photons would only make a scarce deposit rarer."""
+        best = self._optimum(deposits_as_camera_work=False)
+        if best is None:
             return self.photons
-        v_c, v_p = shares
-        camera_work = self.sum_camera_work / self.sum_camera_paths
-        photon_work = self.sum_photon_work / self.sum_photons
-        if v_p <= 0.0 or photon_work <= 0.0:
-            # No photon has reached a measurement point yet: that says the photons are scarce,
-            # not useless, and fewer would only make it rarer. Hold until one does.
-            target = self.photons
-        elif v_c <= 0.0:
-            target = self.photons * MAX_CHANGE           # no camera-side error measured yet
-        else:
-            target = math.sqrt(self.alpha * camera_work / photon_work * v_p / v_c)
-        target = min(max(target, self.photons / MAX_CHANGE), self.photons * MAX_CHANGE)
+        target = min(max(best, self.photons / MAX_CHANGE), self.photons * MAX_CHANGE)
         self.photons = int(min(max(round(target), 1), MAX_PER_PIXEL * self.n_pixels, 1 << 28))
         return self.photons
 
