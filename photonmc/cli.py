@@ -123,6 +123,9 @@ def _add_guiding_options(parser):
                         "requires; drop: the remedy of Zeng & Wei 2019, which is biased (docs/guiding.md)")
     g.add_argument("--expected-values", action="store_true", default=None,
                    help="splat proposals with their acceptance probability (Rao-Blackwellised)")
+    g.add_argument("--suffix-mutation", type=float,
+                   help="probability that a mutation redraws the path from a bounce on instead of perturbing "
+                        "every coordinate (docs/guiding.md, 'Why the mutations shrink')")
     g.add_argument("--path-target", choices=["max", "sum"],
                    help="spatial-tf: a path's target is the max (default) or sum of the importance of the points it hits")
 
@@ -147,7 +150,7 @@ def _method_options(args) -> dict:
             "target_acceptance": args.target_acceptance, "proposal_failures": args.proposal_failures,
             "expected_values": args.expected_values, "path_target": args.path_target,
             "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis,
-            "large_step": args.large_step}
+            "large_step": args.large_step, "suffix_mutation": args.suffix_mutation}
 
 
 def _seed_list(text: str) -> list[int]:

@@ -22,9 +22,9 @@ def render(scene, method, iterations, seed=0, max_depth=None, **options):
     return r
 
 
-@pytest.mark.parametrize("method,options", [("visibility", {}), ("spatial-tf", {}),
-                                            ("spatial-tf", {"expected_values": True})],
-                         ids=["visibility", "spatial-tf", "spatial-tf-expected-values"])
+@pytest.mark.parametrize("method,options", [("visibility", {}), ("visibility", {"suffix_mutation": 0.5}),
+                                            ("spatial-tf", {}), ("spatial-tf", {"expected_values": True})],
+                         ids=["visibility", "visibility-suffix-moves", "spatial-tf", "spatial-tf-expected-values"])
 def test_sphere_furnace(write_scene, method, options):
     """Inside an emitting diffuse sphere the answer is analytic and SPPM's density estimate has
     no blur bias: the Markov-chain estimators must hit it within noise. (Most photon paths are
@@ -39,6 +39,7 @@ def test_sphere_furnace(write_scene, method, options):
     assert abs(lum.mean() - expected) < 5 * spread / np.sqrt(lum.size) + 0.002 * expected
     assert np.abs(lum - expected).max() < 6 * spread
     assert r.stats["levels"][0]["mutations"] > 0
+    assert (r.stats["levels"][0]["suffix_moves"] > 0) == ("suffix_mutation" in options)
 
 
 def _open_box(write_scene, res=16):

@@ -9,8 +9,8 @@ import taichi as ti
 from scipy import stats as sps
 
 from photonmc.kernels.fields import FieldGroup
-from photonmc.kernels.mcmc import (ACCEPTED, DEPOSIT, MUTATIONS, SEEDED_RESAMPLED, THETA_MAX, THETA_MIN, ChainPool,
-                                   adapt_theta)
+from photonmc.kernels.mcmc import (ACCEPTED, DEPOSIT, MUTATIONS, SEEDED_RESAMPLED, SUFFIX_ACCEPTED, SUFFIX_TRIED,
+                                   THETA_MAX, THETA_MIN, ChainPool, adapt_theta)
 
 BINS = 8
 GROUPS = 32
@@ -91,10 +91,11 @@ def exact_bins(kind, levels, shift=0):
 
 def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="strip", drop=False, ev=False,
             adapt=True, theta=None, seed=3, target_acceptance=0.234, burn_in=0.0, seeding="copy", bootstrap=0.125,
-            shift=0, large_step=0.0):
+            shift=0, large_step=0.0, suffix_mutation=0.0):
     model = ToyModel(levels, chains, kind, shift)
     pool = ChainPool(chains, levels, 2, drop_failures=drop, expected_values=ev, burn_in=burn_in,
-                     binary_base=shift == 0, seeding=seeding, bootstrap=bootstrap, large_step=large_step)
+                     binary_base=shift == 0, seeding=seeding, bootstrap=bootstrap, large_step=large_step,
+                     suffix_mutation=suffix_mutation, suffix_starts=(1,))
     if theta is not None:
         pool.theta.fill(theta)
     b_sum = np.zeros(levels)
@@ -230,6 +231,26 @@ def test_one_move_per_step_keeps_every_target(levels):
     c = last["counters"]
     uniform_share = c[0, 2] / (GROUPS * 16 * 800)      # uniform proposals per step, last pass
     assert abs(uniform_share - 0.3) < 0.005
+
+
+@pytest.mark.parametrize("ev", [False, True], ids=["splat-states", "expected-values"])
+def test_suffix_moves_keep_every_target(ev):
+    """Half the mutations redraw y and keep x (the toy's suffix move; the perturbation moves
+    both): every level still samples its target, the normalisations hold, and theta's
+    statistics count the perturbations only."""
+    hist, b, last, _ = run_toy(3, ev=ev, suffix_mutation=0.5)
+    exact = exact_bins("strip", 3)
+    for level in range(3):
+        chi2, dof = chi_square(hist[level], exact[level])
+        print(f"level {level}: chi2 {chi2:.1f} on {dof} bins")
+        assert chi2 < sps.chi2.ppf(0.999, dof), f"level {level} does not sample its target"
+    np.testing.assert_allclose(b, [e.sum() for e in exact], rtol=0.01)
+    c = last["counters"]
+    share = c[:, SUFFIX_TRIED] / (c[:, SUFFIX_TRIED] + c[:, MUTATIONS])
+    assert np.all(np.abs(share - 0.5) < 0.01), share
+    assert (c[:, SUFFIX_ACCEPTED] > 0).all() and (c[:, SUFFIX_ACCEPTED] <= c[:, SUFFIX_TRIED]).all()
+    with pytest.raises(ValueError, match="suffix moves need starts"):
+        ChainPool(4, 1, 2, suffix_mutation=0.5, suffix_starts=(2,))
 
 
 def test_adaptation_reaches_the_target_acceptance():

@@ -30,6 +30,7 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "mesh-room": ("mesh-room", "mesh-room-64.exr", {"res": "64"}),
           "mitsuba-style": ("mitsuba-style", "mitsuba-style-80x60.exr", {"resx": "80", "resy": "60"}),
           "light-gap-closeup": ("light-gap", "light-gap-closeup-64.exr", CLOSEUP),
+          "attic-slit": ("attic-slit", "attic-slit-64.exr", {"res": "64"}),
           # Held out (tools/heldout/README.md): made after the balance was measured above.
           "closet-door": ("../tools/heldout/closet-door.xml", "../../tools/heldout/closet-door-64.exr", {"res": "64"})}
 

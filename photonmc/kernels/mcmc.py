@@ -34,6 +34,14 @@ deferred until a state is replaced or the pass ends, so a state that repeats is 
 Mutation (all three reference implementations of H&J): per coordinate u +- r^(1/theta + 1),
 r uniform, sign uniform, wrapped to [0, 1). theta is per level (adaptation statistics stay
 with the level, not the state) and adapted on the host between passes (`adapt_theta`).
+With `suffix_mutation` p > 0, a mutation is instead, with probability p, a suffix move: every
+coordinate from one of the model's `suffix_starts` on (chosen uniformly, whatever the state)
+is drawn afresh and the prefix kept. Both kernels are symmetric, so their mixture is too and
+the acceptance stays min(1, T'/T). Why: one theta for every coordinate makes the acceptance
+the product of each coordinate group's, so the width shrinks until the sensitive prefix
+(point on the light, emission, first bounces) barely moves, and the insensitive tail of the
+path barely moves with it (docs/guiding.md, "Why the mutations shrink"). theta adapts on
+the perturbations alone.
 
 A model is any data-oriented object with
     trace(source, key, vkey, mode, weight, T) -> (T: ti.Vector(n_levels), dims read)
@@ -50,9 +58,10 @@ from . import rng
 from .fields import FieldGroup
 
 # Per-level counters (int64, atomics, so they are exact and order-independent).
+# MUTATIONS/ACCEPTED count the perturbations (theta's statistics), SUFFIX_* the suffix moves.
 (MUTATIONS, ACCEPTED, UNIFORM, UNIFORM_VISIBLE, SWAPS_TRIED, SWAPS_ACCEPTED, FAILURES, FAILURES_DROPPED,
- SEEDED_RESAMPLED, SEEDED_COPIED) = range(10)
-N_COUNTERS = 10
+ SEEDED_RESAMPLED, SEEDED_COPIED, SUFFIX_TRIED, SUFFIX_ACCEPTED) = range(12)
+N_COUNTERS = 12
 SEEDINGS = ("copy", "resample")
 
 THETA_MIN, THETA_MAX = 1e-4, 1.0        # clamps of the mutation-size parameter
@@ -65,8 +74,9 @@ CPU_LADDER_STRIDE = 512
 FRESH_SALT = 0x5BD1E995                 # separates fresh coordinates from mutation offsets
 
 
-# What a source key asks for: key = (slot, proposal key, level, mode).
-UNIFORM_MODE, MUTATION_MODE, STATE_MODE = 0, 1, 2
+# What a source key asks for: key = (slot, proposal key, level, mode + MODE_BITS x suffix start).
+UNIFORM_MODE, MUTATION_MODE, STATE_MODE, SUFFIX_MODE = 0, 1, 2, 3
+MODE_BITS = 4
 # What a model's trace does with the path.
 PROBE, DEPOSIT = 0, 1
 
@@ -83,9 +93,9 @@ class _ChainSource:
     @ti.func
     def get(self, key, dim):
         slot = ti.cast(key[0], ti.i32)
-        mode = ti.cast(key[3], ti.i32)
+        mode = ti.cast(key[3] % MODE_BITS, ti.i32)
         v = rng.uniform(key[1] ^ ti.u32(FRESH_SALT), dim)     # a coordinate never read before
-        if mode == UNIFORM_MODE:
+        if mode == UNIFORM_MODE or (mode == SUFFIX_MODE and dim >= ti.cast(key[3] // MODE_BITS, ti.i32)):
             v = rng.uniform(key[1], dim)
         elif dim < self.pool.ell[slot]:
             v = self.pool.u[slot, dim]
@@ -131,7 +141,8 @@ def adapt_theta(theta: float, acceptance: float, target: float, k: int) -> float
 class ChainPool:
     def __init__(self, n_chains: int, n_levels: int, dims: int, drop_failures: bool = False,
                  expected_values: bool = False, burn_in: float = 0.0, binary_base: bool = True,
-                 seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8, large_step: float = 0.0):
+                 seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8, large_step: float = 0.0,
+                 suffix_mutation: float = 0.0, suffix_starts: tuple = ()):
         self.n_chains, self.n_levels, self.dims = n_chains, n_levels, dims
         if not 0.0 <= burn_in < 1.0:
             raise ValueError(f"burn_in is a fraction of each pass in [0, 1), got {burn_in}")
@@ -155,6 +166,12 @@ class ChainPool:
             raise ValueError("one move per step (large_step > 0) records no expected values")
         self.large_step = float(large_step)
         self.one_move = large_step > 0.0
+        if not 0.0 <= suffix_mutation < 1.0:
+            raise ValueError(f"suffix_mutation is a probability in [0, 1), got {suffix_mutation}")
+        if suffix_mutation > 0.0 and not (suffix_starts and all(0 < d < dims for d in suffix_starts)):
+            raise ValueError(f"suffix moves need starts inside (0, {dims}), got {suffix_starts}")
+        self.suffix_mutation = float(suffix_mutation)
+        self.suffix_starts = tuple(int(d) for d in suffix_starts) if suffix_mutation > 0.0 else ()
         self.n_slots = n_chains * n_levels
         self.drop_failures = bool(drop_failures)
         self.expected_values = bool(expected_values)
@@ -343,6 +360,16 @@ class ChainPool:
             mode = MUTATION_MODE
             if move == 0:
                 mode = UNIFORM_MODE
+            elif ti.static(self.suffix_mutation > 0.0):
+                r = rng.next_float(state)
+                if r < ti.static(self.suffix_mutation):
+                    n_starts = ti.static(len(self.suffix_starts))
+                    pick = ti.min(ti.cast(r / ti.static(self.suffix_mutation) * n_starts, ti.i32), n_starts - 1)
+                    start = 0
+                    for k in ti.static(range(n_starts)):
+                        if pick == k:
+                            start = self.suffix_starts[k]
+                    mode = SUFFIX_MODE + MODE_BITS * start
             key = ti.math.uvec4(s, rng.next_u32(state), level, mode)
             t_new = zero
             accept = 0
@@ -363,7 +390,7 @@ class ChainPool:
                     result, _ = model.trace(self.source, trace_key, c, trace_mode, deposit_w, deposit_t)
                     if phase == 0:
                         t_new = result
-                        accept, a = self._decide(c, level, move, s, t_new, state)
+                        accept, a = self._decide(c, level, move, mode % MODE_BITS == SUFFIX_MODE, s, t_new, state)
                         if move == 0:
                             uniform_visible = accept
                             if ti.static(self.binary_base) and accept:
@@ -406,7 +433,7 @@ class ChainPool:
             self._exchange(c, level, state)
 
     @ti.func
-    def _decide(self, c, level, move, s, t_new, state: ti.template()):
+    def _decide(self, c, level, move, suffix, s, t_new, state: ti.template()):
         """Metropolis-Hastings decision for a proposal with target values t_new (a uniform
         proposal to level 0 is taken iff visible). Records the current state's expected-value
         share (1 - a) before it may be replaced."""
@@ -429,7 +456,7 @@ class ChainPool:
                 elif rng.next_float(state) < a:
                     accept = 1
         else:
-            ti.atomic_add(self.counters[level, MUTATIONS], 1)
+            ti.atomic_add(self.counters[level, SUFFIX_TRIED if suffix else MUTATIONS], 1)
             t_cur = component(self.T[s], level)
             if component(t_new, level) > 0.0:
                 a = 1.0
@@ -443,7 +470,7 @@ class ChainPool:
                     ti.atomic_add(self.counters[level, FAILURES_DROPPED], 1)
             if rng.next_float(state) < a:
                 accept = 1
-                ti.atomic_add(self.counters[level, ACCEPTED], 1)
+                ti.atomic_add(self.counters[level, SUFFIX_ACCEPTED if suffix else ACCEPTED], 1)
             dropped = ti.static(self.drop_failures) and component(t_new, level) <= 0.0
             if ti.static(self.expected_values) and t_cur > 0.0 and a < 1.0 and not dropped:
                 self._record(c, level, s, 1.0 - a)

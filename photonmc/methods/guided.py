@@ -32,13 +32,15 @@ from ..kernels.mcmc import (
     MUTATIONS,
     N_COUNTERS,
     PROBE,
+    SUFFIX_ACCEPTED,
+    SUFFIX_TRIED,
     SWAPS_ACCEPTED,
     SWAPS_TRIED,
     UNIFORM,
     UNIFORM_VISIBLE,
     ChainPool,
 )
-from ..kernels.photon import dimensions, photon_segments, trace_photon
+from ..kernels.photon import BOUNCE_DIMS, LIGHT_DIMS, dimensions, photon_segments, trace_photon
 from .clusters import HitDensityClusters
 from .sppm import FIXED_ONE, Sppm
 
@@ -58,6 +60,13 @@ DEFAULT_CHAINS = 4        # pass length grows with chains (10 regenerations each
 EPS_AREA = 1e-3          # regularisers of the spatial importance (bound its dynamic range)
 EPS_DENSITY = 1e-3
 MAX_CHAINS = 1 << 20
+# Suffix moves (kernels/mcmc.py): a mutation redraws, with this probability, every coordinate
+# from the scattering at bounce k on, k drawn uniformly from SUFFIX_BOUNCES (bounce 1 would
+# keep only the emitted ray: 0.3-2 % of those stay visible in the gap-lit rooms). Off by
+# default: at equal time they helped where the lamp is hidden from the room (-5 %, -8 %) and
+# hurt where it shines through the gap (+7 %, +8-15 %); docs/guiding.md, "Why the mutations shrink".
+SUFFIX_MUTATION = 0.0
+SUFFIX_BOUNCES = (2, 3, 4)
 
 
 @ti.data_oriented
@@ -66,7 +75,7 @@ class GuidedPhotons(Sppm):
     work_unit = "photons"
     default_iterations = 100
     OPTIONS = {**Sppm.OPTIONS, "chains": None, "target_acceptance": 0.234, "proposal_failures": "keep",
-               "expected_values": False}
+               "expected_values": False, "suffix_mutation": SUFFIX_MUTATION}
     path_target_sum = False
     # Passes last until every chain regenerates (_steps_this_pass), so where the error is
     # camera-side they would starve the camera passes: the effort balance chooses how many
@@ -94,9 +103,16 @@ class GuidedPhotons(Sppm):
         # visibility 7.5 % worse on the gap-lit close-up at equal time (docs/effort.md).
         if self.n_chains < 2:
             self.effort = None     # the balance splits a pass's chains in two halves (effort.py)
-        self.pool = ChainPool(self.n_chains, self.n_levels, dimensions(self.max_photon_segments),
-                              self.drop_failures, self.expected_values,
-                              burn_in=LADDER_BURN_IN if self.n_levels > 1 else 0.0)
+        self.suffix_mutation = float(opts["suffix_mutation"])
+        if not 0.0 <= self.suffix_mutation < 1.0:
+            raise SettingsError(f"--suffix-mutation is a probability in [0, 1), got {self.suffix_mutation}")
+        dims = dimensions(self.max_photon_segments)
+        starts = tuple(d for d in (LIGHT_DIMS + BOUNCE_DIMS * (k - 1) for k in SUFFIX_BOUNCES) if d < dims)
+        if not starts:
+            self.suffix_mutation = 0.0     # paths too short to keep a prefix (max_depth 1)
+        self.pool = ChainPool(self.n_chains, self.n_levels, dims, self.drop_failures, self.expected_values,
+                              burn_in=LADDER_BURN_IN if self.n_levels > 1 else 0.0,
+                              suffix_mutation=self.suffix_mutation, suffix_starts=starts)
         f = FieldGroup(f"guided-{self.name}")
         L, n, c = self.n_levels, self.n_mp, self.n_chains
         self.target_scratch = f.vector(L, ti.f32, c)
@@ -270,6 +286,9 @@ class GuidedPhotons(Sppm):
                 "mutations": mut,
                 "acceptance": float(t[level, ACCEPTED]) / mut if mut else None,
                 "theta": float(theta[level]),
+                "suffix_moves": int(t[level, SUFFIX_TRIED]),
+                "suffix_acceptance": (float(t[level, SUFFIX_ACCEPTED]) / t[level, SUFFIX_TRIED]
+                                      if t[level, SUFFIX_TRIED] else None),
                 "proposal_failures": int(t[level, FAILURES]),
                 "failures_dropped": int(t[level, FAILURES_DROPPED]),
                 "normalisation_last": float(self.b_last[level]),
@@ -286,6 +305,7 @@ class GuidedPhotons(Sppm):
             "target_acceptance": self.target_acceptance,
             "proposal_failures": "drop" if self.drop_failures else "keep",
             "expected_values": self.expected_values,
+            "suffix_mutation": self.suffix_mutation,
             "uniform_visible_fraction": float(t[0, UNIFORM_VISIBLE]) / max(int(t[0, UNIFORM]), 1),
             "photon_paths_traced": int(self.paths_traced[None]),
             "levels": levels,
@@ -299,8 +319,11 @@ class GuidedPhotons(Sppm):
         mut = max(int(t[0, MUTATIONS]), 1)
         theta = self.pool.theta.to_numpy()
         b = "  ".join(f"b{k} {v:.2g}" for k, v in enumerate(self.b_last))
+        suffix = ""
+        if t[0, SUFFIX_TRIED]:
+            suffix = f"  suffix acc {t[0, SUFFIX_ACCEPTED] / t[0, SUFFIX_TRIED]:.2f}"
         return (f"{super().progress_fields()}  visible {t[0, UNIFORM_VISIBLE] / max(int(t[0, UNIFORM]), 1):.2g}  "
-                f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}  {b}")
+                f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}{suffix}  {b}")
 
 
 @ti.data_oriented
