@@ -19,10 +19,14 @@ _current: tuple | None = None
 ARCHES = {"cpu": "cpu", "cuda": "cuda", "vulkan": "vulkan"}
 
 
-def init(arch: str = "cpu", threads: int | None = None, debug: bool = False) -> None:
+def init(arch: str = "cpu", threads: int | None = None, debug: bool = False, kernel_profiler: bool = False) -> None:
+    """kernel_profiler: Taichi times every kernel launch (tools/profile_kernels.py); a later
+    call without it keeps the profiler on."""
     global _current
     key = (arch, threads, debug)
     if _current is not None:
+        if kernel_profiler and not ti.lang.impl.current_cfg().kernel_profiler:
+            raise SettingsError("Taichi is already initialised without the kernel profiler")
         if _current != key:
             raise SettingsError(f"Taichi is already initialised with arch/threads/debug {_current}; "
                                 f"cannot switch to {key} in the same process")
@@ -32,7 +36,7 @@ def init(arch: str = "cpu", threads: int | None = None, debug: bool = False) -> 
     if threads is not None and threads < 1:
         raise SettingsError(f"--threads must be at least 1, got {threads}")
     kwargs = dict(arch=getattr(ti, ARCHES[arch]), default_fp=ti.f32, default_ip=ti.i32,
-                  log_level=ti.WARN, debug=debug, offline_cache=True)
+                  log_level=ti.WARN, debug=debug, offline_cache=True, kernel_profiler=kernel_profiler)
     if threads is not None and arch == "cpu":
         kwargs["cpu_max_num_threads"] = threads
     with contextlib.redirect_stdout(io.StringIO()):   # ti.init prints "Starting on arch=..."

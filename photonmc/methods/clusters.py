@@ -34,20 +34,32 @@ class HitDensityClusters:
         self.kappa = np.zeros(n)            # sum over passes of (hits / area) in the cell
         self.passes = np.zeros(n, np.int64)  # passes in which the cell held MPs
         self.samples = np.zeros(n)          # distinct chain states that hit the cell's MPs
+        self._cached = None                 # (points, their slots per level): see _level_slots
 
-    def _slots(self, pos: np.ndarray, level: int) -> np.ndarray:
-        cells = np.floor((pos - self.lo) / self.size * (1 << level)).astype(np.int64)
-        cells = np.clip(cells, 0, (1 << level) - 1)
-        h = (cells * _PRIMES).sum(axis=1) ^ (np.int64(level) * np.int64(0x9E3779B1))
-        return (h ^ (h >> 17)) & self.mask
+    def _level_slots(self, pos: np.ndarray) -> list[np.ndarray]:
+        """Each level's table slot of every point. A pass asks twice for the same points
+        (density before it, accumulate after), so the last answer is kept: hashing 10 levels
+        of 2^17-2^20 points was 40 % of a spatial-tf iteration on the Cornell box at 128^2
+        (docs/performance.md, "Where the time goes")."""
+        if self._cached is not None and self._cached[0] is pos:
+            return self._cached[1]
+        base = (pos - self.lo) / self.size          # x 2^level below is exact, so cells are as before
+        out = []
+        for level in range(self.levels):
+            cells = np.clip(np.floor(base * (1 << level)).astype(np.int64), 0, (1 << level) - 1)
+            h = (cells[:, 0] * _PRIMES[0] + cells[:, 1] * _PRIMES[1] + cells[:, 2] * _PRIMES[2]) \
+                ^ (np.int64(level) * np.int64(0x9E3779B1))
+            out.append((h ^ (h >> 17)) & self.mask)
+        self._cached = (pos, out)
+        return out
 
     def accumulate(self, pos, area, hits, samples) -> None:
         """One pass: pos, area (pi R^2), hits (uniform-path-equivalent hits this pass) and
         samples (distinct states) of the valid MPs."""
         if len(pos) == 0:
             return
-        for level in range(self.levels):
-            slots, inverse = np.unique(self._slots(pos, level), return_inverse=True)
+        for level_slots in self._level_slots(pos):
+            slots, inverse = np.unique(level_slots, return_inverse=True)
             a = np.bincount(inverse, area)
             h = np.bincount(inverse, hits)
             s = np.bincount(inverse, samples)
@@ -59,8 +71,7 @@ class HitDensityClusters:
         """Hits per unit area per pass at each point, from the finest trusted cell; NaN where
         no level has enough samples yet."""
         rho = np.full(len(pos), np.nan)
-        for level in range(self.levels):
-            slots = self._slots(pos, level)
+        for slots in self._level_slots(pos):
             trusted = (self.samples[slots] >= self.min_samples) & (self.passes[slots] > 0)
             rho[trusted] = self.kappa[slots[trusted]] / self.passes[slots[trusted]]
         return rho
@@ -68,3 +79,4 @@ class HitDensityClusters:
     def reset(self):
         for a in (self.kappa, self.passes, self.samples):
             a[:] = 0
+        self._cached = None
