@@ -126,6 +126,9 @@ def _add_guiding_options(parser):
     g.add_argument("--suffix-mutation", type=float,
                    help="probability that a mutation redraws the path from a bounce on instead of perturbing "
                         "every coordinate (docs/guiding.md, 'Why the mutations shrink')")
+    g.add_argument("--mutation", choices=["joint", "blocks"],
+                   help="joint (default): a mutation perturbs every coordinate with one width; blocks: one "
+                        "block (light, bounce 1, bounce 2, the rest) at a time, each with its own width")
     g.add_argument("--path-target", choices=["max", "sum"],
                    help="spatial-tf: a path's target is the max (default) or sum of the importance of the points it hits")
 
@@ -150,7 +153,8 @@ def _method_options(args) -> dict:
             "target_acceptance": args.target_acceptance, "proposal_failures": args.proposal_failures,
             "expected_values": args.expected_values, "path_target": args.path_target,
             "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis,
-            "large_step": args.large_step, "suffix_mutation": args.suffix_mutation}
+            "large_step": args.large_step, "suffix_mutation": args.suffix_mutation,
+            "mutation": args.mutation}
 
 
 def _seed_list(text: str) -> list[int]:

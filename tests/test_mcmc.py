@@ -91,11 +91,11 @@ def exact_bins(kind, levels, shift=0):
 
 def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="strip", drop=False, ev=False,
             adapt=True, theta=None, seed=3, target_acceptance=0.234, burn_in=0.0, seeding="copy", bootstrap=0.125,
-            shift=0, large_step=0.0, suffix_mutation=0.0):
+            shift=0, large_step=0.0, suffix_mutation=0.0, block_starts=()):
     model = ToyModel(levels, chains, kind, shift)
     pool = ChainPool(chains, levels, 2, drop_failures=drop, expected_values=ev, burn_in=burn_in,
                      binary_base=shift == 0, seeding=seeding, bootstrap=bootstrap, large_step=large_step,
-                     suffix_mutation=suffix_mutation, suffix_starts=(1,))
+                     suffix_mutation=suffix_mutation, suffix_starts=(1,), block_starts=block_starts)
     if theta is not None:
         pool.theta.fill(theta)
     b_sum = np.zeros(levels)
@@ -108,7 +108,7 @@ def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="st
         if adapt:
             pool.adapt(last, target_acceptance)
     hist = model.hist.to_numpy()
-    theta = pool.theta.to_numpy()
+    theta = pool.theta.to_numpy() if not block_starts else pool.block_theta.to_numpy()
     model.fields.release()
     pool.release()
     return hist, b_sum / passes, last, theta
@@ -251,6 +251,28 @@ def test_suffix_moves_keep_every_target(ev):
     assert (c[:, SUFFIX_ACCEPTED] > 0).all() and (c[:, SUFFIX_ACCEPTED] <= c[:, SUFFIX_TRIED]).all()
     with pytest.raises(ValueError, match="suffix moves need starts"):
         ChainPool(4, 1, 2, suffix_mutation=0.5, suffix_starts=(2,))
+
+
+def test_block_moves_keep_every_target_and_adapt_a_width_per_block():
+    """Perturbations of x alone or y alone (two blocks, one drawn per mutation), each block
+    with its own theta: every level samples its target, and on a needle half as wide in y as
+    in x the two widths part."""
+    hist, b, last, _ = run_toy(3, block_starts=(0, 1), passes=6)
+    exact = exact_bins("strip", 3)
+    for level in range(3):
+        chi2, dof = chi_square(hist[level], exact[level])
+        print(f"level {level}: chi2 {chi2:.1f} on {dof} bins")
+        assert chi2 < sps.chi2.ppf(0.999, dof), f"level {level} does not sample its target"
+    np.testing.assert_allclose(b, [e.sum() for e in exact], rtol=0.01)
+    bc = last["block_counters"]
+    share = bc[:, 0, 0] / bc[:, :, 0].sum(axis=1)
+    assert np.all(np.abs(share - 0.5) < 0.01)
+    _, _, last, theta = run_toy(1, kind="needle", block_starts=(0, 1), passes=8)
+    bc = last["block_counters"][0]
+    print("needle: theta per block", theta[0], "acceptance", bc[:, 1] / bc[:, 0])
+    assert theta.shape == (1, 2) and theta[0, 1] < theta[0, 0]
+    with pytest.raises(ValueError, match="block_starts"):
+        ChainPool(4, 1, 2, block_starts=(1,))
 
 
 def test_adaptation_reaches_the_target_acceptance():

@@ -42,6 +42,10 @@ the product of each coordinate group's, so the width shrinks until the sensitive
 (point on the light, emission, first bounces) barely moves, and the insensitive tail of the
 path barely moves with it (docs/guiding.md, "Why the mutations shrink"). theta adapts on
 the perturbations alone.
+With `block_starts` (coordinate ranges [start_b, start_b+1), the last to the end), a
+perturbation moves one block only, drawn uniformly whatever the state, with that block's own
+theta, adapted on that block's acceptance (random-scan Metropolis within blocks: each block
+move keeps the target, so their mixture does).
 
 A model is any data-oriented object with
     trace(source, key, vkey, mode, weight, T) -> (T: ti.Vector(n_levels), dims read)
@@ -100,14 +104,22 @@ class _ChainSource:
         elif dim < self.pool.ell[slot]:
             v = self.pool.u[slot, dim]
             if mode == MUTATION_MODE:
-                r = rng.uniform(key[1], 2 * dim)
-                delta = ti.pow(r, 1.0 / self.pool.theta[ti.cast(key[2], ti.i32)] + 1.0)
-                if rng.uniform(key[1], 2 * dim + 1) < 0.5:
-                    delta = -delta
-                v += delta
-                v -= ti.floor(v)
-                if v >= 1.0:          # float rounding of a tiny negative value
-                    v = 0.0
+                theta = 0.0
+                if ti.static(self.pool.n_blocks > 1):
+                    b = ti.cast(key[3] // MODE_BITS, ti.i32)
+                    if self.pool.block_lo[b] <= dim < self.pool.block_hi[b]:
+                        theta = self.pool.block_theta[ti.cast(key[2], ti.i32), b]
+                else:
+                    theta = self.pool.theta[ti.cast(key[2], ti.i32)]
+                if theta > 0.0:
+                    r = rng.uniform(key[1], 2 * dim)
+                    delta = ti.pow(r, 1.0 / theta + 1.0)
+                    if rng.uniform(key[1], 2 * dim + 1) < 0.5:
+                        delta = -delta
+                    v += delta
+                    v -= ti.floor(v)
+                    if v >= 1.0:          # float rounding of a tiny negative value
+                        v = 0.0
         return v
 
 
@@ -142,7 +154,7 @@ class ChainPool:
     def __init__(self, n_chains: int, n_levels: int, dims: int, drop_failures: bool = False,
                  expected_values: bool = False, burn_in: float = 0.0, binary_base: bool = True,
                  seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8, large_step: float = 0.0,
-                 suffix_mutation: float = 0.0, suffix_starts: tuple = ()):
+                 suffix_mutation: float = 0.0, suffix_starts: tuple = (), block_starts: tuple = ()):
         self.n_chains, self.n_levels, self.dims = n_chains, n_levels, dims
         if not 0.0 <= burn_in < 1.0:
             raise ValueError(f"burn_in is a fraction of each pass in [0, 1), got {burn_in}")
@@ -172,6 +184,10 @@ class ChainPool:
             raise ValueError(f"suffix moves need starts inside (0, {dims}), got {suffix_starts}")
         self.suffix_mutation = float(suffix_mutation)
         self.suffix_starts = tuple(int(d) for d in suffix_starts) if suffix_mutation > 0.0 else ()
+        starts = [int(d) for d in block_starts]
+        if starts and (starts[0] != 0 or any(b <= a for a, b in zip(starts, starts[1:])) or starts[-1] >= dims):
+            raise ValueError(f"block_starts must rise from 0 and stay below {dims}, got {block_starts}")
+        self.n_blocks = max(len(starts), 1)
         self.n_slots = n_chains * n_levels
         self.drop_failures = bool(drop_failures)
         self.expected_values = bool(expected_values)
@@ -183,6 +199,11 @@ class ChainPool:
         self.level_slot = f.scalar(ti.i32, (n_chains, n_levels))
         self.fresh = f.scalar(ti.i32, self.n_slots)      # 1: the state belongs to this pass's target
         self.theta = f.scalar(ti.f32, n_levels)
+        if self.n_blocks > 1:
+            self.block_lo = f.scalar(ti.i32, self.n_blocks, starts)
+            self.block_hi = f.scalar(ti.i32, self.n_blocks, starts[1:] + [dims])
+            self.block_theta = f.scalar(ti.f32, (n_levels, self.n_blocks))
+            self.block_counters = f.scalar(ti.i64, (n_levels, self.n_blocks, 2))    # tried, accepted
         self.counters = f.scalar(ti.i64, (n_levels, N_COUNTERS))
         # Per-ladder float sums, added up on the host in a fixed order (determinism):
         # recorded weight per level, and sum of T[l+1]/T[l] over level-l records.
@@ -218,6 +239,9 @@ class ChainPool:
             fld.fill(0)
         self.level_slot.from_numpy(np.arange(self.n_slots, dtype=np.int32).reshape(self.n_chains, self.n_levels))
         self.theta.fill(THETA_START)
+        if self.n_blocks > 1:
+            self.block_theta.fill(THETA_START)
+            self.block_counters.fill(0)
         self.adapt_passes[:] = 0
 
     def begin_pass(self, model):
@@ -230,7 +254,7 @@ class ChainPool:
         uniform proposal on (an exact draw from the new target, after which Metropolis keeps
         the chain exact), and a higher level only once seeded from a fresh level below."""
         for fld in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.reservoir_sum,
-                    self.reservoir_hits, self.adopted):
+                    self.reservoir_hits, self.adopted) + ((self.block_counters,) if self.n_blocks > 1 else ()):
             fld.fill(0)
         self._visit_states(model, PROBE)
 
@@ -253,9 +277,12 @@ class ChainPool:
         rec = self.recorded.to_numpy().sum(axis=0)
         ratio = self.ratio.to_numpy().sum(axis=0)
         n_uniform = max(int(c[0, UNIFORM]), 1)
-        return {"counters": c, "recorded": rec,
-                "mean_ratio": np.divide(ratio, rec, out=np.zeros_like(ratio), where=rec > 0),
-                "uniform_mean": self.uniform_T.to_numpy().sum(axis=0) / n_uniform}
+        out = {"counters": c, "recorded": rec,
+               "mean_ratio": np.divide(ratio, rec, out=np.zeros_like(ratio), where=rec > 0),
+               "uniform_mean": self.uniform_T.to_numpy().sum(axis=0) / n_uniform}
+        if self.n_blocks > 1:
+            out["block_counters"] = self.block_counters.to_numpy()
+        return out
 
     def normalisations(self, tallies: dict) -> np.ndarray:
         """b_0 = visible fraction of uniform proposals; b_{l+1} = b_l E_{T_l}[T_{l+1}/T_l]
@@ -279,6 +306,16 @@ class ChainPool:
                 theta[level] = adapt_theta(float(theta[level]), c[level, ACCEPTED] / n, target_acceptance,
                                            int(self.adapt_passes[level]))
         self.theta.from_numpy(theta.astype(np.float32))
+        if self.n_blocks > 1:
+            bc = tallies["block_counters"]
+            bt = self.block_theta.to_numpy()
+            for level in range(self.n_levels):
+                k = int(self.adapt_passes[level])
+                for b in range(self.n_blocks):
+                    if bc[level, b, 0] > 0 and k > 0:
+                        bt[level, b] = adapt_theta(float(bt[level, b]), bc[level, b, 1] / bc[level, b, 0],
+                                                   target_acceptance, k)
+            self.block_theta.from_numpy(bt.astype(np.float32))
 
     # -- kernels ------------------------------------------------------------------------
     @ti.kernel
@@ -370,6 +407,10 @@ class ChainPool:
                         if pick == k:
                             start = self.suffix_starts[k]
                     mode = SUFFIX_MODE + MODE_BITS * start
+            if ti.static(self.n_blocks > 1):
+                if mode == MUTATION_MODE:
+                    pick = ti.min(ti.cast(rng.next_float(state) * self.n_blocks, ti.i32), self.n_blocks - 1)
+                    mode = MUTATION_MODE + MODE_BITS * pick
             key = ti.math.uvec4(s, rng.next_u32(state), level, mode)
             t_new = zero
             accept = 0
@@ -391,6 +432,11 @@ class ChainPool:
                     if phase == 0:
                         t_new = result
                         accept, a = self._decide(c, level, move, mode % MODE_BITS == SUFFIX_MODE, s, t_new, state)
+                        if ti.static(self.n_blocks > 1):
+                            if move > 0 and mode % MODE_BITS == MUTATION_MODE:
+                                b = mode // MODE_BITS
+                                ti.atomic_add(self.block_counters[level, b, 0], 1)
+                                ti.atomic_add(self.block_counters[level, b, 1], accept)
                         if move == 0:
                             uniform_visible = accept
                             if ti.static(self.binary_base) and accept:

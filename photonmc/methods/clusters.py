@@ -22,6 +22,8 @@ _PRIMES = np.array([73856093, 19349663, 83492791], np.int64)
 
 
 class HitDensityClusters:
+    TRANSIENT = ("_cached",)     # a render state keeps the statistics, not the last pass's slots
+
     def __init__(self, lo, hi, n_points: int, levels: int = 10, min_samples: float = 64.0):
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
         self.lo = lo

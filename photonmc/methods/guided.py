@@ -67,6 +67,9 @@ MAX_CHAINS = 1 << 20
 # hurt where it shines through the gap (+7 %, +8-15 %); docs/guiding.md, "Why the mutations shrink".
 SUFFIX_MUTATION = 0.0
 SUFFIX_BOUNCES = (2, 3, 4)
+# --mutation blocks: the light's coordinates, bounce 1's, bounce 2's and all later ones
+# perturbed one block at a time, each with its own theta (kernels/mcmc.py).
+MUTATION_BLOCKS = 4
 
 
 @ti.data_oriented
@@ -75,7 +78,8 @@ class GuidedPhotons(Sppm):
     work_unit = "photons"
     default_iterations = 100
     OPTIONS = {**Sppm.OPTIONS, "chains": None, "target_acceptance": 0.234, "proposal_failures": "keep",
-               "expected_values": False, "suffix_mutation": SUFFIX_MUTATION}
+               "expected_values": False, "suffix_mutation": SUFFIX_MUTATION,
+               "mutation": "joint"}
     path_target_sum = False
     # Passes last until every chain regenerates (_steps_this_pass), so where the error is
     # camera-side they would starve the camera passes: the effort balance chooses how many
@@ -110,9 +114,16 @@ class GuidedPhotons(Sppm):
         starts = tuple(d for d in (LIGHT_DIMS + BOUNCE_DIMS * (k - 1) for k in SUFFIX_BOUNCES) if d < dims)
         if not starts:
             self.suffix_mutation = 0.0     # paths too short to keep a prefix (max_depth 1)
+        if opts["mutation"] not in ("joint", "blocks"):
+            raise SettingsError(f"--mutation must be 'joint' or 'blocks', got '{opts['mutation']}'")
+        blocks = ()
+        if opts["mutation"] == "blocks":
+            blocks = tuple(d for d in (0,) + tuple(LIGHT_DIMS + BOUNCE_DIMS * k for k in range(MUTATION_BLOCKS - 1))
+                           if d < dims)
+        self.mutation_blocks = len(blocks)
         self.pool = ChainPool(self.n_chains, self.n_levels, dims, self.drop_failures, self.expected_values,
                               burn_in=LADDER_BURN_IN if self.n_levels > 1 else 0.0,
-                              suffix_mutation=self.suffix_mutation, suffix_starts=starts)
+                              suffix_mutation=self.suffix_mutation, suffix_starts=starts, block_starts=blocks)
         f = FieldGroup(f"guided-{self.name}")
         L, n, c = self.n_levels, self.n_mp, self.n_chains
         self.target_scratch = f.vector(L, ti.f32, c)
@@ -285,7 +296,8 @@ class GuidedPhotons(Sppm):
                 "target": self.level_names[level],
                 "mutations": mut,
                 "acceptance": float(t[level, ACCEPTED]) / mut if mut else None,
-                "theta": float(theta[level]),
+                "theta": float(theta[level]) if self.mutation_blocks <= 1 else None,   # blocks: block_theta
+                "block_theta": (self.pool.block_theta.to_numpy()[level].tolist() if self.mutation_blocks > 1 else None),
                 "suffix_moves": int(t[level, SUFFIX_TRIED]),
                 "suffix_acceptance": (float(t[level, SUFFIX_ACCEPTED]) / t[level, SUFFIX_TRIED]
                                       if t[level, SUFFIX_TRIED] else None),
@@ -306,6 +318,7 @@ class GuidedPhotons(Sppm):
             "proposal_failures": "drop" if self.drop_failures else "keep",
             "expected_values": self.expected_values,
             "suffix_mutation": self.suffix_mutation,
+            "mutation": "blocks" if self.mutation_blocks > 1 else "joint",
             "uniform_visible_fraction": float(t[0, UNIFORM_VISIBLE]) / max(int(t[0, UNIFORM]), 1),
             "photon_paths_traced": int(self.paths_traced[None]),
             "levels": levels,
@@ -320,10 +333,12 @@ class GuidedPhotons(Sppm):
         theta = self.pool.theta.to_numpy()
         b = "  ".join(f"b{k} {v:.2g}" for k, v in enumerate(self.b_last))
         suffix = ""
+        if self.mutation_blocks > 1:
+            suffix = "  blocks " + "/".join(f"{x:.2g}" for x in self.pool.block_theta.to_numpy()[0])
         if t[0, SUFFIX_TRIED]:
             suffix = f"  suffix acc {t[0, SUFFIX_ACCEPTED] / t[0, SUFFIX_TRIED]:.2f}"
         return (f"{super().progress_fields()}  visible {t[0, UNIFORM_VISIBLE] / max(int(t[0, UNIFORM]), 1):.2g}  "
-                f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}{suffix}  {b}")
+                f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}{suffix}  {b}")   # theta: the joint width
 
 
 @ti.data_oriented
@@ -340,7 +355,7 @@ class SpatialTarget(GuidedPhotons):
     level_names = ("visibility", "inverse-area", "spatial")
     OPTIONS = {**GuidedPhotons.OPTIONS, "path_target": "max"}
     # this pass's MPs and per-MP targets, set by _prepare_targets, and their hit counts
-    TRANSIENT = Sppm.TRANSIENT + ("_valid", "_pos", "_area", "inv_area", "importance", "hits")
+    TRANSIENT = Sppm.TRANSIENT + ("_valid", "_pos", "_area", "_n_points", "inv_area", "importance", "hits")
 
     def __init__(self, dscene, settings):
         path_target = {**self.OPTIONS, **{k: v for k, v in settings.options.items() if v is not None}}["path_target"]
@@ -351,17 +366,24 @@ class SpatialTarget(GuidedPhotons):
         lo, hi = dscene.scene.bounds
         self.clusters = HitDensityClusters(lo, hi, self.n_pixels)
         self._valid = None
+        self._n_points = 0
 
     def _reset(self):
         super()._reset()
         self.clusters.reset()
 
     def _prepare_targets(self):
-        valid = self.mp_valid.to_numpy().astype(bool)
-        pos = self.mp_p.to_numpy()[valid].astype(np.float64)
-        area = math.pi * self.mp_radius.to_numpy()[valid].astype(np.float64) ** 2
-        inv_area = np.zeros(self.n_mp, np.float32)
-        importance = np.zeros(self.n_mp, np.float32)
+        # Only this pass's MPs cross to the host: the fields are sized for the most camera
+        # paths the balance may choose (2^20 points), and copying all of them every pass cost
+        # about 40 ms of a 260 ms iteration (docs/performance.md, "Where the time goes").
+        n = self._n_points = self.camera_paths * self.n_pixels
+        valid, pos, radius = np.empty(n, np.int32), np.empty((n, 3), np.float32), np.empty(n, np.float32)
+        self._export_points(n, valid, pos, radius)
+        valid = valid.astype(bool)
+        pos = pos[valid].astype(np.float64)
+        area = math.pi * radius[valid].astype(np.float64) ** 2
+        inv_area = np.zeros(n, np.float32)
+        importance = np.zeros(n, np.float32)
         if valid.any():
             ia = 1.0 / (area / area.max() + EPS_AREA)
             rho = self.clusters.density(pos)
@@ -373,19 +395,46 @@ class SpatialTarget(GuidedPhotons):
                 imp = ia / (rho / max(rho_max, 1e-300) + EPS_DENSITY)
             inv_area[valid] = ia / ia.mean()
             importance[valid] = imp / imp.mean()
-        self.inv_area.from_numpy(inv_area)
-        self.importance.from_numpy(importance)
+        # Entries past n keep older values: no grid of this pass holds them, so none is read.
+        self._import_targets(n, inv_area, importance)
         self._valid, self._pos, self._area = valid, pos, area
 
     def _after_pass(self, level_scale):
-        hits = self.hits.to_numpy().astype(np.float64) / FIXED_ONE
+        n = self._n_points
+        hits = np.empty((self.n_levels, n), np.int64)
+        photons = np.empty(n, np.int64)
+        self._export_hits(n, hits, photons)       # and clears the hit counts
+        hits = hits.astype(np.float64) / FIXED_ONE
         per_mp = (hits * level_scale[:, None]).sum(axis=0)
         # A photon deposits into each of a pixel's K MPs: count it once per pixel, so that
         # a cluster is trusted after as many photons whatever K (clusters.py, min_samples).
-        samples = self.M.to_numpy().astype(np.float64) / self.camera_paths
+        samples = photons.astype(np.float64) / self.camera_paths
         v = self._valid
         self.clusters.accumulate(self._pos, self._area, per_mp[v], samples[v])
-        self.hits.fill(0)
+
+    @ti.kernel
+    def _export_points(self, n: ti.i32, valid: ti.types.ndarray(), pos: ti.types.ndarray(),
+                       radius: ti.types.ndarray()):
+        for j in range(n):
+            valid[j] = self.mp_valid[j]
+            radius[j] = self.mp_radius[j]
+            p = self.mp_p[j]
+            for k in ti.static(range(3)):
+                pos[j, k] = p[k]
+
+    @ti.kernel
+    def _import_targets(self, n: ti.i32, inv_area: ti.types.ndarray(), importance: ti.types.ndarray()):
+        for j in range(n):
+            self.inv_area[j] = inv_area[j]
+            self.importance[j] = importance[j]
+
+    @ti.kernel
+    def _export_hits(self, n: ti.i32, hits: ti.types.ndarray(), photons: ti.types.ndarray()):
+        for j in range(n):
+            photons[j] = self.M[j]
+            for level in ti.static(range(self.n_levels)):
+                hits[level, j] = self.hits[level, j]
+                self.hits[level, j] = 0
 
     def progress_fields(self) -> str:
         swaps = self.totals[:, SWAPS_ACCEPTED] / np.maximum(self.totals[:, SWAPS_TRIED], 1)
