@@ -127,6 +127,16 @@ def chi_square(group_hist, expected_p):
     return float(((mean - p[keep]) ** 2 / np.maximum(var, 1e-30)).sum()), int(keep.sum())
 
 
+def assert_every_level_samples_its_target(hist, b, exact, rtol=0.01):
+    """Each level's recorded states pass the chi-square at the 0.1 % level and the chained
+    normalisations match the exact integrals."""
+    for level in range(len(exact)):
+        chi2, dof = chi_square(hist[level], exact[level])
+        print(f"level {level}: chi2 {chi2:.1f} on {dof} bins")
+        assert chi2 < sps.chi2.ppf(0.999, dof), f"level {level} does not sample its target"
+    np.testing.assert_allclose(b, [e.sum() for e in exact], rtol=rtol)
+
+
 def test_adaptation_step_diminishes_and_clamps():
     assert adapt_theta(0.1, 0.234, 0.234, 1) == pytest.approx(0.1)
     big, late = adapt_theta(0.1, 0.5, 0.234, 1) / 0.1, adapt_theta(0.1, 0.5, 0.234, 1000) / 0.1
@@ -239,12 +249,7 @@ def test_suffix_moves_keep_every_target(ev):
     both): every level still samples its target, the normalisations hold, and theta's
     statistics count the perturbations only."""
     hist, b, last, _ = run_toy(3, ev=ev, suffix_mutation=0.5)
-    exact = exact_bins("strip", 3)
-    for level in range(3):
-        chi2, dof = chi_square(hist[level], exact[level])
-        print(f"level {level}: chi2 {chi2:.1f} on {dof} bins")
-        assert chi2 < sps.chi2.ppf(0.999, dof), f"level {level} does not sample its target"
-    np.testing.assert_allclose(b, [e.sum() for e in exact], rtol=0.01)
+    assert_every_level_samples_its_target(hist, b, exact_bins("strip", 3))
     c = last["counters"]
     share = c[:, SUFFIX_TRIED] / (c[:, SUFFIX_TRIED] + c[:, MUTATIONS])
     assert np.all(np.abs(share - 0.5) < 0.01), share
@@ -258,12 +263,7 @@ def test_block_moves_keep_every_target_and_adapt_a_width_per_block():
     with its own theta: every level samples its target, and on a needle half as wide in y as
     in x the two widths part."""
     hist, b, last, _ = run_toy(3, block_starts=(0, 1), passes=6)
-    exact = exact_bins("strip", 3)
-    for level in range(3):
-        chi2, dof = chi_square(hist[level], exact[level])
-        print(f"level {level}: chi2 {chi2:.1f} on {dof} bins")
-        assert chi2 < sps.chi2.ppf(0.999, dof), f"level {level} does not sample its target"
-    np.testing.assert_allclose(b, [e.sum() for e in exact], rtol=0.01)
+    assert_every_level_samples_its_target(hist, b, exact_bins("strip", 3))
     bc = last["block_counters"]
     share = bc[:, 0, 0] / bc[:, :, 0].sum(axis=1)
     assert np.all(np.abs(share - 0.5) < 0.01)

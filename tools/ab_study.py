@@ -13,13 +13,9 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from effort_study import REPO, SCENES, rmse_after  # noqa: E402
-
-from photonmc.imageio import read_image  # noqa: E402
+from effort_study import SCENES, equal_time_pair, table_row  # noqa: E402
 
 
 def main():
@@ -37,18 +33,8 @@ def main():
     print("| scene | A RMSE | B RMSE | B/A | A (iterations, photons) | B |")
     print("|---|---|---|---|---|---|")
     for name in args.scenes:
-        scene, ref_name, params = SCENES[name]
-        ref = read_image(REPO / "tests" / "refs" / ref_name).astype(np.float64)
-        errors, info = {"A": [], "B": []}, {}
-        for seed in seeds:
-            for mode in (("A", "B") if seed % 2 == 0 else ("B", "A")):
-                e, info[mode] = rmse_after(scene, dict(params), args.method, dict(options[mode]), seed,
-                                           args.seconds, ref)
-                errors[mode].append(e)
-        a, b = np.array(errors["A"]), np.array(errors["B"])
-        se = lambda x: x.std() / np.sqrt(len(x))  # noqa: E731
-        print(f"| {name} | {a.mean():.5f} ± {se(a):.5f} | {b.mean():.5f} ± {se(b):.5f} | {b.mean() / a.mean():.3f} | "
-              f"{info['A']} | {info['B']} |", flush=True)
+        errors, info = equal_time_pair(name, args.method, options, seeds, args.seconds)
+        print(table_row(name, errors, info), flush=True)
 
 
 if __name__ == "__main__":

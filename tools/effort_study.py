@@ -52,6 +52,29 @@ def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, 
         p.release()
 
 
+def equal_time_pair(name: str, method: str, options: dict, seeds, seconds: float):
+    """RMSE over seeds of `method` under each of two option sets ({label: options}) on scene
+    `name`, rendered back to back, alternating which goes first. Returns ({label: errors},
+    {label: (iterations, photons per pass) of the last seed})."""
+    scene, ref_name, params = SCENES[name]
+    ref = read_image(REPO / "tests" / "refs" / ref_name).astype(np.float64)
+    labels = list(options)
+    errors, info = {label: [] for label in labels}, {}
+    for seed in seeds:
+        for label in (labels if seed % 2 == 0 else labels[::-1]):
+            e, info[label] = rmse_after(scene, dict(params), method, dict(options[label]), seed, seconds, ref)
+            errors[label].append(e)
+    return {label: np.array(v) for label, v in errors.items()}, info
+
+
+def table_row(name: str, errors: dict, info: dict) -> str:
+    """| scene | first RMSE ± se | second RMSE ± se | second/first ... | (Markdown)."""
+    (la, a), (lb, b) = errors.items()
+    se = lambda x: x.std() / np.sqrt(len(x))  # noqa: E731
+    return (f"| {name} | {a.mean():.5f} ± {se(a):.5f} | {b.mean():.5f} ± {se(b):.5f} | {b.mean() / a.mean():.3f} | "
+            f"{info[la]} | {info[lb]} |")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("scenes", nargs="*", default=list(SCENES))
@@ -60,24 +83,14 @@ def main():
     ap.add_argument("--method", default="sppm")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
-    print("| scene | auto RMSE | one per pixel RMSE | ratio | auto (iterations, photons) | fixed |")
+    print("| scene | one per pixel RMSE | auto RMSE | auto/fixed | fixed (iterations, photons) | auto |")
     print("|---|---|---|---|---|---|")
     for name in args.scenes:
-        scene, ref_name, params = SCENES[name]
-        ref = read_image(REPO / "tests" / "refs" / ref_name).astype(np.float64)
+        params = SCENES[name][2]
         pixels = int(params["resx"]) * int(params["resy"]) if "resx" in params else int(params["res"]) ** 2
-        errors, info = {"auto": [], "fixed": []}, {}
-        for seed in seeds:
-            order = ("auto", "fixed") if seed % 2 == 0 else ("fixed", "auto")
-            for mode in order:
-                photons = "auto" if mode == "auto" else pixels
-                e, info[mode] = rmse_after(scene, dict(params), args.method, {"photons": photons}, seed,
-                                           args.seconds, ref)
-                errors[mode].append(e)
-        a, f = np.array(errors["auto"]), np.array(errors["fixed"])
-        se = lambda x: x.std() / np.sqrt(len(x))  # noqa: E731
-        print(f"| {name} | {a.mean():.5f} ± {se(a):.5f} | {f.mean():.5f} ± {se(f):.5f} | {a.mean() / f.mean():.3f} | "
-              f"{info['auto']} | {info['fixed']} |", flush=True)
+        errors, info = equal_time_pair(name, args.method, {"fixed": {"photons": pixels}, "auto": {"photons": "auto"}},
+                                       seeds, args.seconds)
+        print(table_row(name, errors, info), flush=True)
 
 
 if __name__ == "__main__":
