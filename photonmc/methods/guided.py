@@ -332,13 +332,13 @@ class GuidedPhotons(Sppm):
         mut = max(int(t[0, MUTATIONS]), 1)
         theta = self.pool.theta.to_numpy()
         b = "  ".join(f"b{k} {v:.2g}" for k, v in enumerate(self.b_last))
-        suffix = ""
+        moves = ""       # the alternative mutations' own figures, where they are on
         if self.mutation_blocks > 1:
-            suffix = "  blocks " + "/".join(f"{x:.2g}" for x in self.pool.block_theta.to_numpy()[0])
+            moves += "  block theta " + "/".join(f"{x:.2g}" for x in self.pool.block_theta.to_numpy()[0])
         if t[0, SUFFIX_TRIED]:
-            suffix = f"  suffix acc {t[0, SUFFIX_ACCEPTED] / t[0, SUFFIX_TRIED]:.2f}"
+            moves += f"  suffix acc {t[0, SUFFIX_ACCEPTED] / t[0, SUFFIX_TRIED]:.2f}"
         return (f"{super().progress_fields()}  visible {t[0, UNIFORM_VISIBLE] / max(int(t[0, UNIFORM]), 1):.2g}  "
-                f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}{suffix}  {b}")   # theta: the joint width
+                f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}{moves}  {b}")
 
 
 @ti.data_oriented
