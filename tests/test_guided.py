@@ -23,8 +23,10 @@ def render(scene, method, iterations, seed=0, max_depth=None, **options):
 
 
 @pytest.mark.parametrize("method,options", [("visibility", {}), ("visibility", {"suffix_mutation": 0.5}),
+                                            ("visibility", {"mutation": "blocks"}),
                                             ("spatial-tf", {}), ("spatial-tf", {"expected_values": True})],
-                         ids=["visibility", "visibility-suffix-moves", "spatial-tf", "spatial-tf-expected-values"])
+                         ids=["visibility", "visibility-suffix-moves", "visibility-block-moves", "spatial-tf",
+                              "spatial-tf-expected-values"])
 def test_sphere_furnace(write_scene, method, options):
     """Inside an emitting diffuse sphere the answer is analytic and SPPM's density estimate has
     no blur bias: the Markov-chain estimators must hit it within noise. (Most photon paths are
@@ -40,6 +42,7 @@ def test_sphere_furnace(write_scene, method, options):
     assert np.abs(lum - expected).max() < 6 * spread
     assert r.stats["levels"][0]["mutations"] > 0
     assert (r.stats["levels"][0]["suffix_moves"] > 0) == ("suffix_mutation" in options)
+    assert (r.stats["levels"][0]["block_theta"] is not None) == ("mutation" in options)
 
 
 def _open_box(write_scene, res=16):

@@ -78,7 +78,8 @@ CPU_LADDER_STRIDE = 512
 FRESH_SALT = 0x5BD1E995                 # separates fresh coordinates from mutation offsets
 
 
-# What a source key asks for: key = (slot, proposal key, level, mode + MODE_BITS x suffix start).
+# What a source key asks for: key = (slot, proposal key, level, mode + MODE_BITS x k), k the suffix
+# move's first redrawn coordinate or the block a perturbation moves (0 otherwise).
 UNIFORM_MODE, MUTATION_MODE, STATE_MODE, SUFFIX_MODE = 0, 1, 2, 3
 MODE_BITS = 4
 # What a model's trace does with the path.
