@@ -32,7 +32,10 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "light-gap-closeup": ("light-gap", "light-gap-closeup-64.exr", CLOSEUP),
           "attic-slit": ("attic-slit", "attic-slit-64.exr", {"res": "64"}),
           # Held out (tools/heldout/README.md): made after the balance was measured above.
-          "closet-door": ("../tools/heldout/closet-door.xml", "../../tools/heldout/closet-door-64.exr", {"res": "64"})}
+          "closet-door": ("../tools/heldout/closet-door.xml", "../../tools/heldout/closet-door-64.exr", {"res": "64"}),
+          # Held out from the mutation study (2026-12-02).
+          "slatted-window": ("../tools/heldout/slatted-window.xml", "../../tools/heldout/slatted-window-64.exr",
+                             {"res": "64"})}
 
 
 def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):
