@@ -35,8 +35,14 @@ def init(arch: str = "cpu", threads: int | None = None, debug: bool = False, ker
         raise SettingsError(f"unknown --arch '{arch}' (choose cpu, cuda or vulkan)")
     if threads is not None and threads < 1:
         raise SettingsError(f"--threads must be at least 1, got {threads}")
+    # cfg_optimization off: Taichi's control-flow-graph passes (store-to-load forwarding, dead
+    # store elimination) scale superlinearly with kernel size (taichi-dev/taichi#1785) and were
+    # 75-85 % of every method's compile time: mbe's first image 143 s -> 28 s, spatial-tf's
+    # 41 s -> 16 s, with images bit-identical and no iteration slower, since LLVM's own
+    # passes do the same work on the generated code (docs/performance.md, "Compile time").
     kwargs = dict(arch=getattr(ti, ARCHES[arch]), default_fp=ti.f32, default_ip=ti.i32,
-                  log_level=ti.WARN, debug=debug, offline_cache=True, kernel_profiler=kernel_profiler)
+                  log_level=ti.WARN, debug=debug, offline_cache=True, kernel_profiler=kernel_profiler,
+                  cfg_optimization=False)
     if threads is not None and arch == "cpu":
         kwargs["cpu_max_num_threads"] = threads
     with contextlib.redirect_stdout(io.StringIO()):   # ti.init prints "Starting on arch=..."

@@ -84,6 +84,11 @@ UNIFORM_MODE, MUTATION_MODE, STATE_MODE, SUFFIX_MODE = 0, 1, 2, 3
 MODE_BITS = 4
 # What a model's trace does with the path.
 PROBE, DEPOSIT = 0, 1
+# What one launch of ChainPool._run does: re-evaluate every stored state (PROBE), deposit every
+# pending weight (DEPOSIT), or take the pass's chain steps (STEPS). One kernel for all three,
+# with one trace call site: each inlined copy of a model's tracer costs seconds of
+# compilation (mbe's: 8 s of a 28 s first image, docs/performance.md).
+STEPS = 2
 
 
 @ti.data_oriented
@@ -257,7 +262,7 @@ class ChainPool:
         for fld in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.reservoir_sum,
                     self.reservoir_hits, self.adopted) + ((self.block_counters,) if self.n_blocks > 1 else ()):
             fld.fill(0)
-        self._visit_states(model, PROBE)
+        self._run(model, 0, 0, 0, 0.0, 0.5, PROBE)
 
     def run(self, model, seed: int, iteration: int, steps: int):
         """`steps` chain steps in all, spread over the ladders, then deposit every pending weight.
@@ -269,8 +274,8 @@ class ChainPool:
         spatial-tf by -3.4 % on the gap-lit room at 32x32 (256 steps per ladder and pass),
         +0.2 % with the first half discarded (docs/guiding.md). Level 0 alone (visibility)
         is exact from its first visible uniform proposal and needs none."""
-        self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap)
-        self._visit_states(model, DEPOSIT)
+        self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, STEPS)
+        self._run(model, seed, iteration, 0, 0.0, 0.5, DEPOSIT)
 
     def tallies(self) -> dict:
         """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l]."""
@@ -321,7 +326,9 @@ class ChainPool:
     # -- kernels ------------------------------------------------------------------------
     @ti.kernel
     def _run(self, model: ti.template(), seed: ti.u32, iteration: ti.u32, steps: ti.i32, burn_in: ti.f32,
-             bootstrap: ti.f32):
+             bootstrap: ti.f32, task: ti.i32):
+        """task STEPS: `steps` chain steps spread over the ladders. PROBE / DEPOSIT: visit
+        every level's stored state once (_step)."""
         base = steps // self.n_chains
         extra = steps % self.n_chains
         for item in range(self.n_chains * ti.static(self.stride)):
@@ -329,44 +336,21 @@ class ChainPool:
                 c = item // ti.static(self.stride)
                 state = rng.seed(seed, ti.u32(c), iteration * ti.u32(2) + ti.u32(1))
                 n = base + (1 if c < extra else 0)
+                if task != STEPS:
+                    n = 1
                 burn = ti.cast(burn_in * n, ti.i32)
                 seeding_steps = ti.max(ti.cast(bootstrap * n, ti.i32), 1) if ti.static(self.resample) else 0
                 for i in range(n):
-                    if ti.static(self.resample):
-                        self._seed_from_reservoirs(c, i >= seeding_steps)
-                        self.seeding_phase[c] = 1 if i < seeding_steps else 0
-                    self.recording[c] = 1 if i >= burn else 0
-                    self._step(model, c, state)
-
-    @ti.kernel
-    def _visit_states(self, model: ti.template(), mode: ti.i32):
-        """PROBE: re-evaluate every stored state's targets (they changed). DEPOSIT: deposit
-        every pending weight. One kernel and one trace call site for both: every inlined copy
-        of the photon tracer costs seconds of compilation."""
-        for item in range(self.n_chains * ti.static(self.stride)):
-            if item % ti.static(self.stride) != 0:
-                continue
-            c = item // ti.static(self.stride)
-            for level in range(self.n_levels):
-                s = self.level_slot[c, level]
-                zero = ti.Vector([0.0] * self.n_levels)
-                w = self.pending[s]
-                t = self.T[s]
-                if mode == PROBE:
-                    w = zero
-                    t = zero
-                if (mode == PROBE and self.ell[s] > 0) or (mode == DEPOSIT and w.max() > 0.0):
-                    result, _ = model.trace(self.source, ti.math.uvec4(s, 0, 0, STATE_MODE), c, mode, w, t)
-                    if mode == PROBE:
-                        t = result
-                if mode == PROBE:
-                    self.T[s] = t
-                else:
-                    self.pending[s] = zero
+                    if task == STEPS:
+                        if ti.static(self.resample):
+                            self._seed_from_reservoirs(c, i >= seeding_steps)
+                            self.seeding_phase[c] = 1 if i < seeding_steps else 0
+                        self.recording[c] = 1 if i >= burn else 0
+                    self._step(model, c, state, task)
 
     # -- one step of one ladder ------------------------------------------------------------
     @ti.func
-    def _step(self, model: ti.template(), c, state: ti.template()):
+    def _step(self, model: ti.template(), c, state: ti.template(), task):
         """Move 0: a uniform proposal for level 0 (the exchange with the implicit uniform chain:
         a visible one is always taken, since the swap ratio is V(u_uniform) = 1). Move 1: if it
         was invisible, a mutation of level 0. Moves 2..: a mutation of each higher level.
@@ -375,11 +359,16 @@ class ChainPool:
         With `large_step` > 0 a step makes one move only, one proposal traced (as in MBE's
         reference implementations): move 0 with probability large_step, otherwise the
         mutation of a level drawn uniformly; every level that did not move records its
-        state again. A random scan over moves that each keep their targets keeps them too."""
+        state again. A random scan over moves that each keep their targets keeps them too.
+
+        task PROBE / DEPOSIT instead visits each level's stored state through the same trace
+        call site: PROBE re-evaluates its targets (they changed), DEPOSIT deposits its pending
+        weight; nothing else happens and no random number is drawn."""
         zero = ti.Vector([0.0] * self.n_levels)
+        visit = task != STEPS
         uniform_visible = 0
         chosen = -1
-        if ti.static(self.one_move):
+        if ti.static(self.one_move) and not visit:
             r = rng.next_float(state)
             chosen = 0
             if r >= ti.static(self.large_step):
@@ -389,48 +378,65 @@ class ChainPool:
         for move in range(self.n_levels + 1):
             level = ti.max(move - 1, 0)
             s = self.level_slot[c, level]
-            if ti.static(self.one_move) and move != chosen:
-                continue
-            if ti.static(self.binary_base) and move == 1 and uniform_visible:
-                continue          # H&J's loop: mutate only when the uniform proposal was invisible
-            if move > 0 and not self.fresh[s]:
-                continue          # a stale state is not recorded, so mutating it is wasted work
+            if visit:
+                if move == 0:
+                    continue      # a visit: moves 1.. name the levels' stored states
+            else:
+                if ti.static(self.one_move) and move != chosen:
+                    continue
+                if ti.static(self.binary_base) and move == 1 and uniform_visible:
+                    continue      # H&J's loop: mutate only when the uniform proposal was invisible
+                if move > 0 and not self.fresh[s]:
+                    continue      # a stale state is not recorded, so mutating it is wasted work
             mode = MUTATION_MODE
-            if move == 0:
-                mode = UNIFORM_MODE
-            elif ti.static(self.suffix_mutation > 0.0):
-                r = rng.next_float(state)
-                if r < ti.static(self.suffix_mutation):
-                    n_starts = ti.static(len(self.suffix_starts))
-                    pick = ti.min(ti.cast(r / ti.static(self.suffix_mutation) * n_starts, ti.i32), n_starts - 1)
-                    start = 0
-                    for k in ti.static(range(n_starts)):
-                        if pick == k:
-                            start = self.suffix_starts[k]
-                    mode = SUFFIX_MODE + MODE_BITS * start
-            if ti.static(self.n_blocks > 1):
-                if mode == MUTATION_MODE:
-                    pick = ti.min(ti.cast(rng.next_float(state) * self.n_blocks, ti.i32), self.n_blocks - 1)
-                    mode = MUTATION_MODE + MODE_BITS * pick
-            key = ti.math.uvec4(s, rng.next_u32(state), level, mode)
+            key = ti.math.uvec4(s, 0, 0, STATE_MODE)
+            if not visit:
+                if move == 0:
+                    mode = UNIFORM_MODE
+                elif ti.static(self.suffix_mutation > 0.0):
+                    r = rng.next_float(state)
+                    if r < ti.static(self.suffix_mutation):
+                        n_starts = ti.static(len(self.suffix_starts))
+                        pick = ti.min(ti.cast(r / ti.static(self.suffix_mutation) * n_starts, ti.i32), n_starts - 1)
+                        start = 0
+                        for k in ti.static(range(n_starts)):
+                            if pick == k:
+                                start = self.suffix_starts[k]
+                        mode = SUFFIX_MODE + MODE_BITS * start
+                if ti.static(self.n_blocks > 1):
+                    if mode == MUTATION_MODE:
+                        pick = ti.min(ti.cast(rng.next_float(state) * self.n_blocks, ti.i32), self.n_blocks - 1)
+                        mode = MUTATION_MODE + MODE_BITS * pick
+                key = ti.math.uvec4(s, rng.next_u32(state), level, mode)
             t_new = zero
             accept = 0
             a = 0.0
             deposit_key = key
             deposit_w = zero
             deposit_t = zero
+            if visit and task == DEPOSIT:
+                deposit_w = self.pending[s]
+                deposit_t = self.T[s]
             # Phase 0 evaluates the proposal; phase 1 makes the deposit the decision calls for
             # (the replaced state's pending weight, or an expected-value share of a rejected
-            # proposal). One trace call site for both.
+            # proposal). One trace call site for both, and for the visits.
             for phase in range(2):
                 trace_key = key
                 trace_mode = PROBE
-                if phase == 1:
+                traced = phase == 0
+                if visit:
+                    trace_mode = task
+                    traced = phase == 0 and ((task == PROBE and self.ell[s] > 0) or
+                                             (task == DEPOSIT and deposit_w.max() > 0.0))
+                elif phase == 1:
                     trace_key = deposit_key
                     trace_mode = DEPOSIT
-                if phase == 0 or deposit_w.max() > 0.0:
+                    traced = deposit_w.max() > 0.0
+                if traced:
                     result, _ = model.trace(self.source, trace_key, c, trace_mode, deposit_w, deposit_t)
-                    if phase == 0:
+                    if visit:
+                        t_new = result
+                    elif phase == 0:
                         t_new = result
                         accept, a = self._decide(c, level, move, mode % MODE_BITS == SUFFIX_MODE, s, t_new, state)
                         if ti.static(self.n_blocks > 1):
@@ -455,6 +461,12 @@ class ChainPool:
                                     deposit_w[k] = a
                             deposit_t = t_new
                             self._tally(c, level, t_new, a)
+            if visit:
+                if task == PROBE:
+                    self.T[s] = t_new
+                else:
+                    self.pending[s] = zero
+                continue
             if accept:
                 self._store(s, key, t_new)
                 if ti.static(hasattr(model, "adopt")):
@@ -470,14 +482,15 @@ class ChainPool:
                 # its uniform proposal records after the mutation that always follows.)
                 if ti.static(not self.expected_values) and component(self.T[s], level) > 0.0:
                     self._record(c, level, s, 1.0)
-        if ti.static(self.one_move):
-            moved = ti.max(chosen - 1, 0)
-            for level in range(self.n_levels):
-                s = self.level_slot[c, level]
-                if level != moved and component(self.T[s], level) > 0.0:
-                    self._record(c, level, s, 1.0)
-        for level in ti.static(range(self.n_levels - 1)):
-            self._exchange(c, level, state)
+        if not visit:
+            if ti.static(self.one_move):
+                moved = ti.max(chosen - 1, 0)
+                for level in range(self.n_levels):
+                    s = self.level_slot[c, level]
+                    if level != moved and component(self.T[s], level) > 0.0:
+                        self._record(c, level, s, 1.0)
+            for level in ti.static(range(self.n_levels - 1)):
+                self._exchange(c, level, state)
 
     @ti.func
     def _decide(self, c, level, move, suffix, s, t_new, state: ti.template()):

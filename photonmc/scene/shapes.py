@@ -8,7 +8,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from ..errors import SceneError
 
@@ -42,6 +41,7 @@ def load_mesh_file(path: Path, kind: str, where: str):
     """Read an OBJ or PLY through trimesh's format readers, keeping the file's own normals."""
     if not path.is_file():
         raise SceneError(f"{where}: mesh file '{path}' not found")
+    import trimesh    # here, not at the top: importing it takes 0.7 s of every first image (docs/performance.md)
     try:
         with open(path, "rb") as fh:
             if kind == "obj":
