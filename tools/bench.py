@@ -11,7 +11,11 @@
    2 cores on a comparable Cornell box, per ../shared/peers.md).
 4. vcm: iteration time on the same box at 512x512, one light and one camera subpath per pixel
    (SmallVCM's vcm: 0.73 s on 2 cores).
-Compile time is excluded (a warm-up call first); each figure is the best of 3 runs.
+5. compile: every method's first image with a cold kernel cache (tools/compile_times.py,
+   each method in a fresh process; `--no-compile` skips it).
+Items 1-4 exclude compile time (a warm-up call first); each figure is the best of 3 runs.
+The CPU's model and vector extensions head the output (the ratios against Embree and
+Mitsuba's llvm variant depend on the vector width), and the ratios close it.
 Needs the `tools` extra for the peers: pip install -e ".[tools]" embreex
 """
 from __future__ import annotations
@@ -161,6 +165,52 @@ def bench_vcm(iterations, res=512):
             "smallvcm_vcm_reference_iteration_s": 0.73}
 
 
+def cpu_info() -> dict:
+    """Model name and the vector extensions that set how wide Embree's and Mitsuba's SIMD is."""
+    model, flags = "unknown", set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and model == "unknown":
+                model = value.strip()
+            elif key.strip() == "flags" and not flags:
+                flags = set(value.split())
+    except OSError:
+        pass
+    vector = [f for f in ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl") if f in flags]
+    width = 512 if "avx512f" in flags else 256 if "avx2" in flags or "avx" in flags else 128 if flags else None
+    return {"model": model, "cores": os.cpu_count(), "vector_extensions": vector, "vector_width_bits": width}
+
+
+def bench_compile(scene="cornell-box", res=128) -> dict:
+    """First image per method with a cold kernel cache, from tools/compile_times.py."""
+    import subprocess
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "compile.json"
+        subprocess.run([sys.executable, str(ROOT / "tools" / "compile_times.py"), "--scene", scene, "-D", f"res={res}",
+                        "--run-seconds", "0", "--json", str(out)], check=True, capture_output=True)
+        results = json.loads(out.read_text())["results"]
+    return {r["method"]: {"first_image_s": r["to_first_image_s"], "kernels_first_launch_s": sum(r["kernels"].values())}
+            for r in results}
+
+
+def ratios(res: dict) -> dict:
+    """photonmc against each peer that ran (above 1: photonmc is faster)."""
+    out = {}
+    b, p = res["bvh"], res["pt"]
+    if isinstance(b.get("embree_rays_per_s"), float):
+        out["bvh_rays_vs_embree"] = b["photonmc_rays_per_s"] / b["embree_rays_per_s"]
+    for variant in ("llvm_ad_rgb", "scalar_rgb"):
+        peer = p.get(f"mitsuba_{variant}_samples_per_s")
+        if isinstance(peer, float):
+            out[f"pt_samples_vs_mitsuba_{variant}"] = p["photonmc_samples_per_s"] / peer
+    out["sppm_photon_paths_vs_smallvcm"] = (res["sppm"]["photon_paths_per_s_incl_camera_pass"]
+                                            / res["sppm"]["smallvcm_ppm_reference_photon_paths_per_s"])
+    out["vcm_iteration_vs_smallvcm"] = res["vcm"]["smallvcm_vcm_reference_iteration_s"] / res["vcm"]["iteration_s_median"]
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rays", type=int, default=2_000_000)
@@ -168,12 +218,17 @@ def main():
     ap.add_argument("--sppm-iterations", type=int, default=10)
     ap.add_argument("--vcm-iterations", type=int, default=10)
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--no-compile", action="store_true", help="skip the cold-cache first-image figures")
     ap.add_argument("--json")
     args = ap.parse_args()
     from photonmc import runtime
     runtime.init("cpu", args.threads)
-    res = {"cpu_threads": args.threads or os.cpu_count(), "bvh": bench_bvh(args.rays), "pt": bench_pt(args.pt_iterations),
-           "sppm": bench_sppm(args.sppm_iterations), "vcm": bench_vcm(args.vcm_iterations)}
+    res = {"cpu": cpu_info(), "cpu_threads": args.threads or os.cpu_count(), "bvh": bench_bvh(args.rays),
+           "pt": bench_pt(args.pt_iterations), "sppm": bench_sppm(args.sppm_iterations),
+           "vcm": bench_vcm(args.vcm_iterations)}
+    if not args.no_compile:
+        res["compile"] = bench_compile()
+    res["ratios"] = ratios(res)
     text = json.dumps(res, indent=2)
     print(text)
     if args.json:
