@@ -6,6 +6,7 @@ A sample that is NaN or infinite is dropped and counted, never added to the imag
 import numpy as np
 import taichi as ti
 
+from .kernels.batch import fill_fields
 from .kernels.fields import FieldGroup
 from .kernels.sampling import luminance
 
@@ -25,9 +26,7 @@ class Film:
         self.fields.release()
 
     def reset(self):
-        self.sum.fill(0)
-        self.sum_sq.fill(0)
-        self.nonfinite.fill(0)
+        fill_fields([(self.sum, 0), (self.sum_sq, 0), (self.nonfinite, 0)])
         self.samples_per_pixel = 0
 
     @ti.func

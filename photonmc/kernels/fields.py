@@ -20,12 +20,12 @@ from collections import OrderedDict
 import numpy as np
 import taichi as ti
 
+from .batch import fill_fields, upload_fields
+
 _NP_DTYPES = {ti.f32: np.float32, ti.f64: np.float64, ti.i32: np.int32, ti.i64: np.int64}
 _BYTES = {ti.f32: 4, ti.f64: 8, ti.i32: 4, ti.i64: 8, ti.u32: 4}
 POOL_MAX_GROUPS = 24
 POOL_MAX_BYTES = 1 << 31
-
-
 class _Allocation:
     """One finalized SNode tree with its fields, in the order they were asked for."""
 
@@ -176,14 +176,12 @@ class FieldGroup:
             # Fresh fields start zeroed; recycled ones must too (all of those handed out,
             # also where the specs diverged after a shared prefix).
             n_taken = len(specs) - len(self._new_fields)
-            for fields in reused.fields[:n_taken]:
-                for f in (fields if isinstance(fields, list) else [fields]):
-                    f.fill(0)
+            fill_fields((f, 0) for fields in reused.fields[:n_taken]
+                        for f in (fields if isinstance(fields, list) else [fields]))
             self._exact_reuse = not self._new_fields and reused.specs == specs
-        for field, values in self._uploads:
-            if field.shape and field.shape[0] != len(values):     # fields of empty arrays keep one slot
-                continue
-            field.from_numpy(values)
+        # Fields of empty arrays keep one slot and are not uploaded.
+        upload_fields((field, values) for field, values in self._uploads
+                      if not (field.shape and field.shape[0] != len(values)))
         self._uploads = []
 
     @property

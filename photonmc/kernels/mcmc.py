@@ -59,6 +59,7 @@ import numpy as np
 import taichi as ti
 
 from . import rng
+from .batch import fill_fields
 from .fields import FieldGroup
 
 # Per-level counters (int64, atomics, so they are exact and order-independent).
@@ -160,7 +161,8 @@ class ChainPool:
     def __init__(self, n_chains: int, n_levels: int, dims: int, drop_failures: bool = False,
                  expected_values: bool = False, burn_in: float = 0.0, binary_base: bool = True,
                  seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8, large_step: float = 0.0,
-                 suffix_mutation: float = 0.0, suffix_starts: tuple = (), block_starts: tuple = ()):
+                 suffix_mutation: float = 0.0, suffix_starts: tuple = (), block_starts: tuple = (),
+                 base_records_in_burn_in: bool = False):
         self.n_chains, self.n_levels, self.dims = n_chains, n_levels, dims
         if not 0.0 <= burn_in < 1.0:
             raise ValueError(f"burn_in is a fraction of each pass in [0, 1), got {burn_in}")
@@ -172,6 +174,12 @@ class ChainPool:
         if not 0.0 < bootstrap < 1.0:
             raise ValueError(f"bootstrap is a fraction of each pass in (0, 1), got {bootstrap}")
         self.burn_in = float(burn_in)
+        if base_records_in_burn_in and not binary_base:
+            raise ValueError("only a binary level 0 is exact during the burn-in")
+        # A binary level 0 is exact from its first visible uniform proposal; only exchanges with
+        # the burning-in levels above disturb it. With this option it records during the burn-in
+        # too, and the exchanges wait for the burn-in's end.
+        self.base_records_in_burn_in = bool(base_records_in_burn_in)
         self.binary_base = bool(binary_base)
         self.resample = seeding == "resample"
         self.bootstrap = float(bootstrap) if self.resample else 0.0
@@ -240,14 +248,10 @@ class ChainPool:
 
     def reset(self):
         """Empty every chain (they restart from uniform proposals) and theta."""
-        for fld in (self.u, self.ell, self.T, self.pending, self.counters, self.recorded, self.ratio, self.fresh,
-                    self.uniform_T):
-            fld.fill(0)
+        fill_fields([(f, 0) for f in (self.u, self.ell, self.T, self.pending, self.counters, self.recorded,
+                                      self.ratio, self.fresh, self.uniform_T)] + [(self.theta, THETA_START)] +
+                    ([(self.block_theta, THETA_START), (self.block_counters, 0)] if self.n_blocks > 1 else []))
         self.level_slot.from_numpy(np.arange(self.n_slots, dtype=np.int32).reshape(self.n_chains, self.n_levels))
-        self.theta.fill(THETA_START)
-        if self.n_blocks > 1:
-            self.block_theta.fill(THETA_START)
-            self.block_counters.fill(0)
         self.adapt_passes[:] = 0
 
     def begin_pass(self, model):
@@ -259,9 +263,9 @@ class ChainPool:
         light-gap, docs/guiding.md). So a pass records level 0 only from its first visible
         uniform proposal on (an exact draw from the new target, after which Metropolis keeps
         the chain exact), and a higher level only once seeded from a fresh level below."""
-        for fld in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.reservoir_sum,
-                    self.reservoir_hits, self.adopted) + ((self.block_counters,) if self.n_blocks > 1 else ()):
-            fld.fill(0)
+        fill_fields((f, 0) for f in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T,
+                                     self.reservoir_sum, self.reservoir_hits, self.adopted) +
+                    ((self.block_counters,) if self.n_blocks > 1 else ()))
         self._run(model, 0, 0, 0, 0.0, 0.5, PROBE)
 
     def run(self, model, seed: int, iteration: int, steps: int):
@@ -455,7 +459,7 @@ class ChainPool:
                             deposit_key = ti.math.uvec4(s, 0, 0, STATE_MODE)
                             deposit_w = self.pending[s]
                             deposit_t = self.T[s]
-                        elif ti.static(self.expected_values) and a > 0.0 and self.recording[c]:
+                        elif ti.static(self.expected_values) and a > 0.0 and self._recording(c, level):
                             for k in ti.static(range(self.n_levels)):
                                 if k == level:
                                     deposit_w[k] = a
@@ -558,7 +562,8 @@ class ChainPool:
             if ti.static(not self.resample) and ta[hi] > 0.0:
                 self._copy(sa, sb)
                 ti.atomic_add(self.counters[hi, SEEDED_COPIED], 1)
-        elif self.fresh[sa] and self.fresh[sb]:
+        elif self.fresh[sa] and self.fresh[sb] and \
+                (ti.static(not self.base_records_in_burn_in or lo > 0) or self.recording[c]):
             ti.atomic_add(self.counters[lo, SWAPS_TRIED], 1)
             if swap:
                 ti.atomic_add(self.counters[lo, SWAPS_ACCEPTED], 1)
@@ -616,10 +621,20 @@ class ChainPool:
             self.ratio[c, level] += ti.cast(w * component(t, level + 1) / component(t, level), ti.f64)
 
     @ti.func
+    def _recording(self, c, level) -> ti.i32:
+        """Whether ladder c records `level` now: past the burn-in, or level 0 throughout where
+        it is exact (base_records_in_burn_in)."""
+        on = self.recording[c]
+        if ti.static(self.base_records_in_burn_in):
+            if level == 0:
+                on = 1
+        return on
+
+    @ti.func
     def _record(self, c, level, s, w):
         """The state in slot s is a sample of `level` with weight w (deposited later); nothing
         while the ladder burns in."""
-        if self.recording[c] and self.fresh[s]:
+        if self._recording(c, level) and self.fresh[s]:
             self._tally(c, level, self.T[s], w)
             p = self.pending[s]
             for k in ti.static(range(self.n_levels)):

@@ -37,6 +37,7 @@ import taichi as ti
 from ..errors import SettingsError
 from ..kernels import vcm_techniques
 from ..kernels.camera_walk import CONTINUE
+from ..kernels.batch import fill_fields
 from ..kernels.fields import FieldGroup
 from ..kernels.mcmc import (
     ACCEPTED,
@@ -119,7 +120,8 @@ class Mbe(Vcm):
     default_iterations = 64
     independent_iterations = False      # the chains carry their states and mutation sizes on
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
-               "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP}
+               "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
+               "base_in_burn_in": False}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
@@ -145,7 +147,8 @@ class Mbe(Vcm):
             raise SettingsError(f"--large-step must be in [0, 1), got {self.large_step}")
         self.pool = ChainPool(self.n_chains, self.n_levels, self.pair_dim + 1, seeding="resample",
                               bootstrap=BOOTSTRAP_FRACTION, bootstrap_hits=BOOTSTRAP_HITS,
-                              burn_in=LADDER_BURN_IN, large_step=self.large_step)
+                              burn_in=LADDER_BURN_IN, large_step=self.large_step,
+                              base_records_in_burn_in=bool(opts["base_in_burn_in"]))
         w, h, c = dscene.width, dscene.height, self.n_chains
         f = FieldGroup("mbe-chains")
         self.visit_mode = f.scalar(ti.i32, c)
@@ -192,11 +195,8 @@ class Mbe(Vcm):
         self._reset_chains()
 
     def _reset_chains(self):
-        self.b_mis.fill(1.0)
-        self.pre_scale.fill(1.0)
-        self.light_counters.fill(0)
-        self.light_frame.fill(0)
-        self.list_stats.fill(0)
+        fill_fields([(self.b_mis, 1.0), (self.pre_scale, 1.0), (self.light_counters, 0), (self.light_frame, 0),
+                     (self.list_stats, 0)])
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
         self.steps_last = self.n_light
         self.b_last = np.zeros(self.n_levels)

@@ -34,6 +34,7 @@ from ..kernels import rng
 from ..kernels.camera_walk import STOP, THROUGHPUT_ROULETTE, camera_walk
 from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.direct import next_event
+from ..kernels.batch import fill_fields
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import HashGrid
 from ..kernels.photon import MAX_PHOTON_SEGMENTS, NORMAL_COS_MIN, photon_segments, trace_photon
@@ -166,9 +167,8 @@ class Sppm(Method):
         self.fields.release()
 
     def _reset(self):
-        for f in (self.R, self.N, self.D, self.tau, self.Ld, self.M, self.phi, self.phi_odd, self.counters,
-                  self.mp_valid):
-            f.fill(0)
+        fill_fields((f, 0) for f in (self.R, self.N, self.D, self.tau, self.Ld, self.M, self.phi, self.phi_odd,
+                                     self.counters, self.mp_valid))
         self.photons_emitted = 0
         if self.camera_paths_auto:
             self.camera_paths = 1

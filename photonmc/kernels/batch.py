@@ -1,0 +1,106 @@
+"""Fills and uploads of many fields in one kernel launch.
+
+`field.fill(v)` and `field.from_numpy(a)` compile one small kernel per field (the field is a
+template argument): 40-60 of them before a guided method's first image, each costing tens of
+milliseconds of compilation with a cold cache. One loop over all the fields' scalars together
+compiles once per batch and several times faster (docs/performance.md, "Compile time").
+No `from __future__ import annotations` here: Taichi reads the kernels' annotations as objects.
+"""
+from collections import OrderedDict
+
+import numpy as np
+import taichi as ti
+
+_NP_DTYPES = {ti.f32: np.float32, ti.f64: np.float64, ti.i32: np.int32, ti.i64: np.int64, ti.u32: np.uint32}
+
+# Fields one batched fill or upload serves per kernel: each is a branch in the loop body,
+# unrolled at compile time (Taichi warns beyond 32 unrolled iterations).
+BATCH_FIELDS = 24
+
+
+def _components(field) -> int:
+    return field.n * field.m if isinstance(field, ti.MatrixField) else 1
+
+
+def _size(field) -> int:
+    return int(np.prod(field.shape, dtype=np.int64)) * _components(field)
+
+
+@ti.func
+def _set_flat(f: ti.template(), flat, value):
+    """f's scalar number `flat` in numpy's C order (indices, then components) = value."""
+    n = ti.static(_components(f))
+    rest = flat // n
+    idx = ti.Vector([0] * ti.static(len(f.shape)))
+    for d in ti.static(range(len(f.shape) - 1, -1, -1)):
+        idx[d] = rest % ti.static(f.shape[d])
+        rest //= ti.static(f.shape[d])
+    if ti.static(n == 1):
+        f[idx] = value
+    else:
+        v = f[idx]
+        c = flat % n
+        for k in ti.static(range(n)):
+            if k == c:
+                v[k] = value
+        f[idx] = v
+
+
+@ti.kernel
+def _fill_batch(fields: ti.template(), plan: ti.template(), total: ti.i32):
+    """plan[k] = (first flat index, scalars, value) of fields[k] in one flat range."""
+    for j in range(total):
+        for k in ti.static(range(len(fields))):
+            if ti.static(plan[k][0]) <= j < ti.static(plan[k][0] + plan[k][1]):
+                _set_flat(fields[k], j - ti.static(plan[k][0]), ti.static(plan[k][2]))
+
+
+@ti.kernel
+def _upload_batch(fields: ti.template(), plan: ti.template(), data: ti.types.ndarray(), total: ti.i32):
+    """plan[k] = (first flat index, scalars) of fields[k] in data."""
+    for j in range(total):
+        for k in ti.static(range(len(fields))):
+            if ti.static(plan[k][0]) <= j < ti.static(plan[k][0] + plan[k][1]):
+                _set_flat(fields[k], j - ti.static(plan[k][0]), data[j])
+
+
+def _batches(items):
+    """Runs of at most BATCH_FIELDS fields whose scalars fit one i32 loop."""
+    out, run, total = [], [], 0
+    for item in items:
+        n = _size(item[0])
+        if run and (len(run) == BATCH_FIELDS or total + n >= 1 << 31):
+            out.append(run)
+            run, total = [], 0
+        run.append(item)
+        total += n
+    return out + ([run] if run else [])
+
+
+def fill_fields(pairs) -> None:
+    """field.fill(value) for every (field, value) in pairs, in one kernel launch per batch."""
+    pairs = [(f, v) for f, v in pairs if _size(f) > 0]
+    for batch in _batches(pairs):
+        plan, offset = [], 0
+        for f, v in batch:
+            plan.append((offset, _size(f), float(v) if f.dtype in (ti.f32, ti.f64) else int(v)))
+            offset += _size(f)
+        _fill_batch(tuple(f for f, _ in batch), tuple(plan), offset)
+
+
+def upload_fields(pairs) -> None:
+    """field.from_numpy(array) for every (field, array) in pairs, one launch per dtype and batch."""
+    by_dtype = OrderedDict()
+    for f, a in pairs:
+        a = np.asarray(a)
+        if a.size != _size(f):
+            raise ValueError(f"an array of {a.size} values for a field of {_size(f)}")
+        by_dtype.setdefault(f.dtype, []).append((f, a))
+    for dtype, items in by_dtype.items():
+        for batch in _batches(items):
+            data = np.concatenate([a.reshape(-1) for _, a in batch]).astype(_NP_DTYPES[dtype], copy=False)
+            plan, offset = [], 0
+            for f, a in batch:
+                plan.append((offset, a.size))
+                offset += a.size
+            _upload_batch(tuple(f for f, _ in batch), tuple(plan), data, offset)
