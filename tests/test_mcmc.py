@@ -10,7 +10,7 @@ from scipy import stats as sps
 
 from photonmc.kernels.fields import FieldGroup
 from photonmc.kernels.mcmc import (ACCEPTED, DEPOSIT, MUTATIONS, SEEDED_RESAMPLED, SUFFIX_ACCEPTED, SUFFIX_TRIED,
-                                   THETA_MAX, THETA_MIN, ChainPool, adapt_theta)
+                                   SWAPS_ACCEPTED, THETA_MAX, THETA_MIN, ChainPool, adapt_theta)
 
 BINS = 8
 GROUPS = 32
@@ -91,11 +91,12 @@ def exact_bins(kind, levels, shift=0):
 
 def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="strip", drop=False, ev=False,
             adapt=True, theta=None, seed=3, target_acceptance=0.234, burn_in=0.0, seeding="copy", bootstrap=0.125,
-            shift=0, large_step=0.0, suffix_mutation=0.0, block_starts=()):
+            shift=0, large_step=0.0, suffix_mutation=0.0, block_starts=(), base_records_in_burn_in=False):
     model = ToyModel(levels, chains, kind, shift)
     pool = ChainPool(chains, levels, 2, drop_failures=drop, expected_values=ev, burn_in=burn_in,
                      binary_base=shift == 0, seeding=seeding, bootstrap=bootstrap, large_step=large_step,
-                     suffix_mutation=suffix_mutation, suffix_starts=(1,), block_starts=block_starts)
+                     suffix_mutation=suffix_mutation, suffix_starts=(1,), block_starts=block_starts,
+                     base_records_in_burn_in=base_records_in_burn_in)
     if theta is not None:
         pool.theta.fill(theta)
     b_sum = np.zeros(levels)
@@ -224,6 +225,27 @@ def test_a_level_0_target_that_is_not_binary():
     np.testing.assert_allclose(b, [e.sum() for e in exact], rtol=0.01)
     with pytest.raises(ValueError, match="not binary"):
         ChainPool(4, 2, 2, binary_base=False)
+
+
+def test_level_0_recording_through_the_burn_in_keeps_every_target():
+    """mbe's ladder (two levels, one move per step, resampled starts, the first half of each
+    pass burning in) with base_records_in_burn_in: level 0, exact from its first visible
+    uniform proposal, records the whole pass and exchanges wait for the burn-in's end. Both
+    levels still sample their targets, at short passes too, the normalisations hold, and
+    level 0 records about twice the weight level 1 does."""
+    exact = exact_bins("strip", 2)
+    for steps in (160, 800):
+        hist, b, last, _ = run_toy(2, passes=8, steps_per_chain=steps, seeding="resample", large_step=0.3,
+                                   burn_in=0.5, bootstrap=0.25, base_records_in_burn_in=True)
+        for level in range(2):
+            chi2, dof = chi_square(hist[level], exact[level])
+            print(f"{steps} steps, level {level}: chi2 {chi2:.1f} on {dof} bins")
+            assert chi2 < sps.chi2.ppf(0.999, dof)
+        np.testing.assert_allclose(b, [e.sum() for e in exact], rtol=0.015)
+        assert 1.7 < last["recorded"][0] / last["recorded"][1] < 2.3
+        assert last["counters"][0, SWAPS_ACCEPTED] > 0
+    with pytest.raises(ValueError, match="only a binary level 0"):
+        ChainPool(4, 2, 2, binary_base=False, seeding="resample", base_records_in_burn_in=True)
 
 
 @pytest.mark.parametrize("levels", [2, 3])

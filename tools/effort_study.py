@@ -50,7 +50,8 @@ def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, 
         t0 = time.perf_counter()
         while time.perf_counter() - t0 < seconds:
             m.iterate()
-        return rmse(m.image(), ref), (m.iterations, m.photons_per_iteration)
+        # photons per pass (sppm and the guided methods) or chain steps per pass (mbe)
+        return rmse(m.image(), ref), (m.iterations, getattr(m, "photons_per_iteration", getattr(m, "steps_last", None)))
     finally:
         p.release()
 

@@ -79,7 +79,7 @@ class GuidedPhotons(Sppm):
     default_iterations = 100
     OPTIONS = {**Sppm.OPTIONS, "chains": None, "target_acceptance": 0.234, "proposal_failures": "keep",
                "expected_values": False, "suffix_mutation": SUFFIX_MUTATION,
-               "mutation": "joint", "base_in_burn_in": False}
+               "mutation": "joint"}
     path_target_sum = False
     # Passes last until every chain regenerates (_steps_this_pass), so where the error is
     # camera-side they would starve the camera passes: the effort balance chooses how many
@@ -123,8 +123,7 @@ class GuidedPhotons(Sppm):
         self.mutation_blocks = len(blocks)
         self.pool = ChainPool(self.n_chains, self.n_levels, dims, self.drop_failures, self.expected_values,
                               burn_in=LADDER_BURN_IN if self.n_levels > 1 else 0.0,
-                              suffix_mutation=self.suffix_mutation, suffix_starts=starts, block_starts=blocks,
-                              base_records_in_burn_in=bool(opts["base_in_burn_in"]) and self.n_levels > 1)
+                              suffix_mutation=self.suffix_mutation, suffix_starts=starts, block_starts=blocks)
         f = FieldGroup(f"guided-{self.name}")
         L, n, c = self.n_levels, self.n_mp, self.n_chains
         self.target_scratch = f.vector(L, ti.f32, c)
