@@ -4,10 +4,10 @@
                                   [--scene cornell-box] [-D res=64] [--init NAME=VALUE ...]
 
 Each method runs in its own process with an empty Taichi offline cache, so every figure is
-what a new user's first `photonmc render` pays. The first launch of each kernel (Python ->
-Taichi IR -> LLVM -> machine code, then one run) is timed; then warm iterations for
-`--run-seconds` give the time per iteration that the compiler settings buy. `--init`
-passes extra ti.init settings (e.g. `--init opt_level=0`) to compare compiler settings.
+what a new user's first `photonmc render` pays. The first launch of each kernel
+specialisation (Python -> Taichi IR -> LLVM -> machine code, then one run) is timed; then
+warm iterations for `--run-seconds` give the time per iteration that the compiler settings
+buy. `--init` passes extra ti.init settings (e.g. `--init opt_level=0`) to compare them.
 """
 import argparse
 import json
@@ -29,7 +29,6 @@ def child(method: str, scene: str, params: dict, init: dict, run_seconds: float)
     import taichi as ti
     import taichi.lang.kernel_impl as kernel_impl
 
-    from photonmc import runtime
     from photonmc.loop import Job
     t_import = time.perf_counter() - t_start
 
@@ -76,7 +75,6 @@ def child(method: str, scene: str, params: dict, init: dict, run_seconds: float)
         t_iteration = (time.perf_counter() - t) / m.iterations
     finally:
         p.release()
-    _ = runtime
     return {"method": method, "import_s": t_import, "prepare_s": t_prepare, "first_iteration_s": t_first,
             "iteration_s": t_iteration, "to_first_image_s": t_to_first_image,
             "kernels": dict(first_launch)}

@@ -277,7 +277,9 @@ class ChainPool:
         out of equilibrium until it has mixed, and recording it from the start biased
         spatial-tf by -3.4 % on the gap-lit room at 32x32 (256 steps per ladder and pass),
         +0.2 % with the first half discarded (docs/guiding.md). Level 0 alone (visibility)
-        is exact from its first visible uniform proposal and needs none."""
+        is exact from its first visible uniform proposal and needs none: with
+        base_records_in_burn_in it records the whole pass and exchanges it with level 1 only
+        after the burn-in (mbe, docs/mbe.md)."""
         self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, STEPS)
         self._run(model, seed, iteration, 0, 0.0, 0.5, DEPOSIT)
 
