@@ -69,6 +69,8 @@ def _batches(items):
     out, run, total = [], [], 0
     for item in items:
         n = _size(item[0])
+        if n >= 1 << 31:
+            raise ValueError(f"a field of {n} scalars is more than one batched loop indexes (2^31)")
         if run and (len(run) == BATCH_FIELDS or total + n >= 1 << 31):
             out.append(run)
             run, total = [], 0
