@@ -38,8 +38,9 @@ def init(arch: str = "cpu", threads: int | None = None, debug: bool = False, ker
     # cfg_optimization off: Taichi's control-flow-graph passes (store-to-load forwarding, dead
     # store elimination) scale superlinearly with kernel size (taichi-dev/taichi#1785) and were
     # 75-85 % of every method's compile time: mbe's first image 143 s -> 28 s, spatial-tf's
-    # 41 s -> 16 s, with images bit-identical and no iteration slower, since LLVM's own
-    # passes do the same work on the generated code (docs/performance.md, "Compile time").
+    # 41 s -> 16 s, and no iteration slower, since LLVM's own passes do the same work on the
+    # generated code. Images differ from those of the passes in the last float bits only
+    # (tests/test_compile_settings.py; docs/performance.md, "Compile time").
     kwargs = dict(arch=getattr(ti, ARCHES[arch]), default_fp=ti.f32, default_ip=ti.i32,
                   log_level=ti.WARN, debug=debug, offline_cache=True, kernel_profiler=kernel_profiler,
                   cfg_optimization=False)

@@ -11,7 +11,7 @@ from collections import OrderedDict
 import numpy as np
 import taichi as ti
 
-_NP_DTYPES = {ti.f32: np.float32, ti.f64: np.float64, ti.i32: np.int32, ti.i64: np.int64, ti.u32: np.uint32}
+NP_DTYPES = {ti.f32: np.float32, ti.f64: np.float64, ti.i32: np.int32, ti.i64: np.int64, ti.u32: np.uint32}
 
 # Fields one batched fill or upload serves per kernel: each is a branch in the loop body,
 # unrolled at compile time (Taichi warns beyond 32 unrolled iterations).
@@ -100,7 +100,7 @@ def upload_fields(pairs) -> None:
         by_dtype.setdefault(f.dtype, []).append((f, a))
     for dtype, items in by_dtype.items():
         for batch in _batches(items):
-            data = np.concatenate([a.reshape(-1) for _, a in batch]).astype(_NP_DTYPES[dtype], copy=False)
+            data = np.concatenate([a.reshape(-1) for _, a in batch]).astype(NP_DTYPES[dtype], copy=False)
             plan, offset = [], 0
             for f, a in batch:
                 plan.append((offset, a.size))

@@ -20,9 +20,8 @@ from collections import OrderedDict
 import numpy as np
 import taichi as ti
 
-from .batch import fill_fields, upload_fields
+from .batch import NP_DTYPES, fill_fields, upload_fields
 
-_NP_DTYPES = {ti.f32: np.float32, ti.f64: np.float64, ti.i32: np.int32, ti.i64: np.int64}
 _BYTES = {ti.f32: 4, ti.f64: 8, ti.i32: 4, ti.i64: 8, ti.u32: 4}
 POOL_MAX_GROUPS = 24
 POOL_MAX_BYTES = 1 << 31
@@ -154,7 +153,7 @@ class FieldGroup:
 
     def _queue(self, field, values, dtype):
         if values is not None and len(values) > 0:
-            self._uploads.append((field, np.ascontiguousarray(values, dtype=_NP_DTYPES[dtype])))
+            self._uploads.append((field, np.ascontiguousarray(values, dtype=NP_DTYPES[dtype])))
 
     # -- allocation and release ------------------------------------------------------------
     def finalize(self):
