@@ -35,7 +35,9 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "closet-door": ("../tools/heldout/closet-door.xml", "../../tools/heldout/closet-door-64.exr", {"res": "64"}),
           # Held out from the mutation study (2026-12-02).
           "slatted-window": ("../tools/heldout/slatted-window.xml", "../../tools/heldout/slatted-window-64.exr",
-                             {"res": "64"})}
+                             {"res": "64"}),
+          # Held out from mbe's burn-in change (2026-12-02).
+          "doorway": ("../tools/heldout/doorway.xml", "../../tools/heldout/doorway-64.exr", {"res": "64"})}
 
 
 def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):
