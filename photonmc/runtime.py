@@ -53,5 +53,20 @@ def init(arch: str = "cpu", threads: int | None = None, debug: bool = False, ker
     _current = key
 
 
+@contextlib.contextmanager
+def advanced_optimization(enabled: bool):
+    """Compile the kernels first launched inside this block with Taichi's advanced
+    optimisation on or off. Taichi reads the setting from its live config when a kernel
+    compiles (and hashes it into the offline-cache key), so launching a kernel inside the
+    same block every time keeps it on one setting, cold or cached."""
+    cfg = ti.lang.impl.current_cfg()
+    saved = cfg.advanced_optimization
+    cfg.advanced_optimization = bool(enabled) and saved
+    try:
+        yield
+    finally:
+        cfg.advanced_optimization = saved
+
+
 def is_initialised() -> bool:
     return _current is not None

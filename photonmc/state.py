@@ -77,12 +77,17 @@ def _plain(value):
 
 def capture(method) -> tuple[dict, dict]:
     """(plain values, arrays) of the method's whole progressive state, keyed by attribute path."""
-    plain, arrays = {}, {}
-    _capture(method, "", plain, arrays, set())
+    plain, arrays, fields = {}, {}, []
+    _capture(method, "", plain, arrays, set(), fields)
+    # One kernel per batch of fields instead of one per field (kernels/batch.py): a guided
+    # method's first state save compiled about 40 of them, 2 s with a cold cache.
+    from .kernels.batch import download_fields
+    for (key, _), data in zip(fields, download_fields(f for _, f in fields)):
+        arrays[key] = data
     return plain, arrays
 
 
-def _capture(obj, prefix, plain, arrays, seen):
+def _capture(obj, prefix, plain, arrays, seen, fields):
     seen.add(id(obj))
     transient = set(getattr(type(obj), "TRANSIENT", ()))
     for name, value in vars(obj).items():
@@ -90,12 +95,12 @@ def _capture(obj, prefix, plain, arrays, seen):
             continue
         key = prefix + name
         if _is_field(value):
-            arrays[key] = value.to_numpy()
+            fields.append((key, value))
         elif isinstance(value, np.ndarray):
             arrays[key] = value.copy()
         elif _is_component(value):
             if id(value) not in seen:      # back references (a chain source to its pool)
-                _capture(value, key + ".", plain, arrays, seen)
+                _capture(value, key + ".", plain, arrays, seen, fields)
         else:
             try:
                 plain[key] = _plain(value)
@@ -105,18 +110,25 @@ def _capture(obj, prefix, plain, arrays, seen):
                                 f"in {type(obj).__name__}.TRANSIENT if every iteration rebuilds it") from None
 
 
+def _numpy_shape(field) -> tuple:
+    from .kernels.batch import numpy_shape
+    return numpy_shape(field)
+
+
 def restore(method, plain: dict, arrays: dict) -> None:
     """Put a captured state back into a method built with the same settings on the same scene."""
-    expected_plain, expected_arrays = set(), set()
-    _restore(method, "", plain, arrays, set(), expected_plain, expected_arrays)
+    expected_plain, expected_arrays, uploads = set(), set(), []
+    _restore(method, "", plain, arrays, set(), expected_plain, expected_arrays, uploads)
     extra = (set(plain) - expected_plain) | (set(arrays) - expected_arrays)
     missing = (expected_plain - set(plain)) | (expected_arrays - set(arrays))
     if extra or missing:
         raise StateError(f"the state does not fit this method's accumulators "
                          f"(unexpected: {sorted(extra)[:3]}, missing: {sorted(missing)[:3]})")
+    from .kernels.batch import upload_fields    # Taichi only where fields are touched
+    upload_fields(uploads)
 
 
-def _restore(obj, prefix, plain, arrays, seen, expected_plain, expected_arrays):
+def _restore(obj, prefix, plain, arrays, seen, expected_plain, expected_arrays, uploads):
     seen.add(id(obj))
     transient = set(getattr(type(obj), "TRANSIENT", ()))
     for name, value in list(vars(obj).items()):
@@ -127,12 +139,12 @@ def _restore(obj, prefix, plain, arrays, seen, expected_plain, expected_arrays):
             expected_arrays.add(key)
             if key in arrays:
                 data = arrays[key]
-                if tuple(data.shape) != tuple(value.to_numpy().shape):
+                if tuple(data.shape) != _numpy_shape(value):
                     raise StateError(f"the state's '{key}' has shape {data.shape}, this render's {value.shape}")
-                value.from_numpy(data)
+                uploads.append((value, data))
         elif _is_component(value):
             if id(value) not in seen:
-                _restore(value, key + ".", plain, arrays, seen, expected_plain, expected_arrays)
+                _restore(value, key + ".", plain, arrays, seen, expected_plain, expected_arrays, uploads)
         elif key in arrays or isinstance(value, np.ndarray):
             expected_arrays.add(key)
             if key in arrays:

@@ -48,3 +48,39 @@ def test_cfg_optimisation_changes_rounding_only(tmp_path):
     scale = float(np.abs(with_passes).max())
     assert scale > 0.0
     np.testing.assert_allclose(without, with_passes, rtol=0, atol=1e-5 * scale)
+
+
+def test_advanced_optimisation_is_turned_off_for_one_block_only():
+    """runtime.advanced_optimization (used for the chain kernel and mbe's camera pass): the
+    setting holds inside the block, is restored after it even when the block raises, and
+    a kernel compiled inside computes what the same kernel compiled outside does."""
+    import pytest
+    import taichi as ti
+
+    from photonmc import runtime
+
+    before = impl.current_cfg().advanced_optimization
+    assert before is True
+    with runtime.advanced_optimization(False):
+        assert impl.current_cfg().advanced_optimization is False
+    assert impl.current_cfg().advanced_optimization is True
+    with pytest.raises(RuntimeError):
+        with runtime.advanced_optimization(False):
+            raise RuntimeError
+    assert impl.current_cfg().advanced_optimization is True
+
+    def make_kernel():
+        @ti.kernel
+        def series(out: ti.types.ndarray()):
+            for i in range(out.shape[0]):
+                x = ti.cast(i, ti.f32) * 0.01
+                s = 0.0
+                for k in range(1, 20):
+                    s += ti.sin(x * k) / k + ti.sin(x * k) * ti.cos(x)   # a common subexpression
+                out[i] = s
+        return series
+    plain, lean = np.zeros(256, np.float32), np.zeros(256, np.float32)
+    make_kernel()(plain)
+    with runtime.advanced_optimization(False):
+        make_kernel()(lean)
+    np.testing.assert_allclose(lean, plain, rtol=0, atol=1e-6 * float(np.abs(plain).max()))

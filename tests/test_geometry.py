@@ -156,16 +156,17 @@ def test_a_group_that_shares_only_a_prefix_with_a_pooled_one_gets_zeroed_fields(
     h.release()
 
 
-def test_batched_fills_and_uploads_match_one_field_at_a_time():
+def test_batched_fills_uploads_and_downloads_match_one_field_at_a_time():
     """kernels/batch.py: scalars and vectors of 0-4 dimensions and four dtypes, more fields
-    than one batch holds, each value landing where field.from_numpy / field.fill put it."""
+    than one batch holds, each value landing where field.from_numpy / field.fill put it, and
+    read back as field.to_numpy reads it (shape, dtype, every bit)."""
     import taichi as ti
     from photonmc.kernels import batch
     from photonmc.kernels.fields import FieldGroup
     rng = np.random.default_rng(7)
     g = FieldGroup("batch-test")
     specs = [(None, ti.f32, ()), (3, ti.i32, (7,)), (2, ti.f32, (2, 3, 4)), (None, ti.i64, (3, 5)),
-             (None, ti.f64, (2, 2, 2, 2)), (4, ti.f32, (5, 3))] * 5            # 30 > BATCH_FIELDS
+             (None, ti.f64, (2, 2, 2, 2)), (4, ti.f32, (5, 3)), (1, ti.f32, (4,))] * 5            # 35 > BATCH_FIELDS
     assert len(specs) > batch.BATCH_FIELDS
     fields = [g.scalar(d, s) if c is None else g.vector(c, d, s) for c, d, s in specs]
     g.finalize()
@@ -177,12 +178,13 @@ def test_batched_fills_and_uploads_match_one_field_at_a_time():
         else:
             arrays.append(rng.normal(size=shape).astype(np.float32 if d == ti.f32 else np.float64))
     batch.upload_fields(zip(fields, arrays))
-    for f, a in zip(fields, arrays):
+    for f, a, got in zip(fields, arrays, batch.download_fields(fields)):
         assert np.array_equal(f.to_numpy(), a)
+        assert got.dtype == a.dtype and got.shape == a.shape and np.array_equal(got, a)
     values = [k % 3 + (0.25 if d in (ti.f32, ti.f64) else 0) for k, (_, d, _) in enumerate(specs)]
     batch.fill_fields(zip(fields, values))
-    for f, v in zip(fields, values):
-        assert (f.to_numpy() == v).all()
+    for f, v, got in zip(fields, values, batch.download_fields(fields)):
+        assert (f.to_numpy() == v).all() and np.array_equal(got, f.to_numpy())
     with pytest.raises(ValueError, match="an array of 3 values for a field of 21"):
         batch.upload_fields([(fields[1], np.zeros(3, np.int32))])
     g.release()

@@ -1,7 +1,7 @@
-"""Fills and uploads of many fields in one kernel launch.
+"""Fills, uploads and downloads of many fields in one kernel launch.
 
-`field.fill(v)` and `field.from_numpy(a)` compile one small kernel per field (the field is a
-template argument): 40-60 of them before a guided method's first image, each costing tens of
+`field.fill(v)`, `field.from_numpy(a)` and `field.to_numpy()` compile one small kernel per
+field (the field is a template argument): 40-60 of them before a guided method's first image, each costing tens of
 milliseconds of compilation with a cold cache. One loop over all the fields' scalars together
 compiles once per batch and several times faster (docs/performance.md, "Compile time").
 No `from __future__ import annotations` here: Taichi reads the kernels' annotations as objects.
@@ -46,6 +46,27 @@ def _set_flat(f: ti.template(), flat, value):
         f[idx] = v
 
 
+@ti.func
+def _get_flat(f: ti.template(), flat):
+    """f's scalar number `flat` in numpy's C order (indices, then components)."""
+    n = ti.static(_components(f))
+    rest = flat // n
+    idx = ti.Vector([0] * ti.static(len(f.shape)))
+    for d in ti.static(range(len(f.shape) - 1, -1, -1)):
+        idx[d] = rest % ti.static(f.shape[d])
+        rest //= ti.static(f.shape[d])
+    out = ti.cast(0, f.dtype)
+    if ti.static(not isinstance(f, ti.MatrixField)):     # a 1-vector still reads as a vector
+        out = f[idx]
+    else:
+        v = f[idx]
+        c = flat % n
+        for k in ti.static(range(n)):
+            if k == c:
+                out = v[k]
+    return out
+
+
 @ti.kernel
 def _fill_batch(fields: ti.template(), plan: ti.template(), total: ti.i32):
     """plan[k] = (first flat index, scalars, value) of fields[k] in one flat range."""
@@ -62,6 +83,15 @@ def _upload_batch(fields: ti.template(), plan: ti.template(), data: ti.types.nda
         for k in ti.static(range(len(fields))):
             if ti.static(plan[k][0]) <= j < ti.static(plan[k][0] + plan[k][1]):
                 _set_flat(fields[k], j - ti.static(plan[k][0]), data[j])
+
+
+@ti.kernel
+def _download_batch(fields: ti.template(), plan: ti.template(), data: ti.types.ndarray(), total: ti.i32):
+    """plan[k] = (first flat index, scalars) of fields[k] in data."""
+    for j in range(total):
+        for k in ti.static(range(len(fields))):
+            if ti.static(plan[k][0]) <= j < ti.static(plan[k][0] + plan[k][1]):
+                data[j] = _get_flat(fields[k], j - ti.static(plan[k][0]))
 
 
 def _batches(items):
@@ -106,3 +136,33 @@ def upload_fields(pairs) -> None:
                 plan.append((offset, a.size))
                 offset += a.size
             _upload_batch(tuple(f for f, _ in batch), tuple(plan), data, offset)
+
+
+def numpy_shape(field) -> tuple:
+    """The shape field.to_numpy() returns, without compiling its kernel."""
+    return tuple(field.shape) + ((field.n,) if isinstance(field, ti.MatrixField) else ())
+
+
+def download_fields(fields) -> list:
+    """[field.to_numpy() for field in fields], one launch per dtype and batch."""
+    fields = list(fields)
+    out = [None] * len(fields)
+    by_dtype = OrderedDict()
+    for i, f in enumerate(fields):
+        if isinstance(f, ti.MatrixField) and f.m != 1:
+            raise ValueError("download_fields reads scalar and vector fields, not matrices")
+        if _size(f) == 0:
+            out[i] = np.zeros(numpy_shape(f), NP_DTYPES[f.dtype])
+        else:
+            by_dtype.setdefault(f.dtype, []).append((f, i))
+    for dtype, items in by_dtype.items():
+        for batch in _batches(items):
+            plan, offset = [], 0
+            for f, _ in batch:
+                plan.append((offset, _size(f)))
+                offset += _size(f)
+            data = np.empty(offset, NP_DTYPES[dtype])
+            _download_batch(tuple(f for f, _ in batch), tuple(plan), data, offset)
+            for (f, i), (start, n) in zip(batch, plan):
+                out[i] = data[start:start + n].reshape(numpy_shape(f)).copy()
+    return out

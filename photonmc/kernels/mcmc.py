@@ -58,8 +58,9 @@ import math
 import numpy as np
 import taichi as ti
 
+from .. import runtime
 from . import rng
-from .batch import fill_fields
+from .batch import download_fields, fill_fields
 from .fields import FieldGroup
 
 # Per-level counters (int64, atomics, so they are exact and order-independent).
@@ -154,6 +155,15 @@ def adapt_theta(theta: float, acceptance: float, target: float, k: int) -> float
     log scale suits a width that must span 1e-4 to 1."""
     step = ADAPT_GAIN * k ** -ADAPT_DECAY * (acceptance - target)
     return float(min(max(theta * math.exp(step), THETA_MIN), THETA_MAX))
+
+
+def _chain_kernel_compilation():
+    """The chain kernel inlines the model's whole tracer (for mbe: connections, merging, light
+    tracing), and Taichi's whole-kernel CSE, part of its advanced optimisation, took 5 of its
+    15 s to compile. LLVM's own passes do that work on the generated code: without the pass
+    the chain kernel compiles 2-5 s faster and runs as fast (within 1.3 % over 11 method/scene
+    pairs, interleaved in one process; docs/performance.md, "Compile time")."""
+    return runtime.advanced_optimization(False)
 
 
 @ti.data_oriented
@@ -266,7 +276,8 @@ class ChainPool:
         fill_fields((f, 0) for f in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T,
                                      self.reservoir_sum, self.reservoir_hits, self.adopted) +
                     ((self.block_counters,) if self.n_blocks > 1 else ()))
-        self._run(model, 0, 0, 0, 0.0, 0.5, PROBE)
+        with _chain_kernel_compilation():
+            self._run(model, 0, 0, 0, 0.0, 0.5, PROBE)
 
     def run(self, model, seed: int, iteration: int, steps: int):
         """`steps` chain steps in all, spread over the ladders, then deposit every pending weight.
@@ -280,20 +291,23 @@ class ChainPool:
         is exact from its first visible uniform proposal and needs none: with
         base_records_in_burn_in it records the whole pass and exchanges it with level 1 only
         after the burn-in (mbe, docs/mbe.md)."""
-        self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, STEPS)
-        self._run(model, seed, iteration, 0, 0.0, 0.5, DEPOSIT)
+        with _chain_kernel_compilation():
+            self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, STEPS)
+            self._run(model, seed, iteration, 0, 0.0, 0.5, DEPOSIT)
 
     def tallies(self) -> dict:
         """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l]."""
-        c = self.counters.to_numpy()
-        rec = self.recorded.to_numpy().sum(axis=0)
-        ratio = self.ratio.to_numpy().sum(axis=0)
+        c, rec, ratio, uniform_T, *blocks = download_fields(
+            (self.counters, self.recorded, self.ratio, self.uniform_T) +
+            ((self.block_counters,) if self.n_blocks > 1 else ()))
+        rec = rec.sum(axis=0)
+        ratio = ratio.sum(axis=0)
         n_uniform = max(int(c[0, UNIFORM]), 1)
         out = {"counters": c, "recorded": rec,
                "mean_ratio": np.divide(ratio, rec, out=np.zeros_like(ratio), where=rec > 0),
-               "uniform_mean": self.uniform_T.to_numpy().sum(axis=0) / n_uniform}
+               "uniform_mean": uniform_T.sum(axis=0) / n_uniform}
         if self.n_blocks > 1:
-            out["block_counters"] = self.block_counters.to_numpy()
+            out["block_counters"] = blocks[0]
         return out
 
     def normalisations(self, tallies: dict) -> np.ndarray:

@@ -36,6 +36,7 @@ import math
 import numpy as np
 import taichi as ti
 
+from .. import runtime
 from ..errors import SettingsError
 from ..kernels import vcm_techniques
 from ..kernels.camera_walk import CONTINUE
@@ -239,7 +240,10 @@ class Mbe(Vcm):
         vm_normalization = 1.0 / (PI * self.radius ** 2 * steps)
         while True:
             self.store.clear(self.n_pixels)
-            self._camera_pass(self.store, self.fields, self.seed_u32, it, self.max_depth, vm_normalization)
+            # Compiled without Taichi's whole-kernel CSE, like the chain kernel (kernels/mcmc.py):
+            # 0.6-1 s less to the first image, about 0.5 % of an iteration (docs/performance.md).
+            with runtime.advanced_optimization(False):
+                self._camera_pass(self.store, self.fields, self.seed_u32, it, self.max_depth, vm_normalization)
             n = int(self.store.count[None])
             if n <= self.store.capacity:
                 break
