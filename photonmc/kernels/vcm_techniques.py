@@ -20,6 +20,49 @@ def camera_frame(sc: ti.template(), cv):
 
 
 @ti.func
+def light_side(sc: ti.template(), lv, w):
+    """Light vertex lv's BSDF toward the unit direction w (out of lv): (w in lv's shading
+    frame, the evaluation)."""
+    l1, l2 = onb(lv.n)
+    w_l = to_local(w, l1, l2, lv.n)
+    return w_l, sc.bsdf_evaluate(lv.bsdf, to_local(lv.wo, l1, l2, lv.n), w_l)
+
+
+@ti.func
+def camera_technique(sc: ti.template(), lv, w, w_l, el, dist2: ti.f32, c, with_weights: ti.template(),
+                     inv_count: ti.f32):
+    """Light tracing's contribution before visibility: lv seen along -w from the camera at
+    squared distance dist2, el = light_side(lv, w)."""
+    contrib = vec3(0.0)
+    if el.f.max() > 0.0:
+        camera_pdf_a = vcm_mis.pdf_w_to_a(sc.camera_pdf_w(-w), dist2, w_l.z)
+        weight = 1.0
+        if ti.static(with_weights):
+            q = sc.bsdf_continuation(lv.bsdf)
+            weight = vcm_mis.light_trace_weight(lv, camera_pdf_a, el.pdf_rev_w * q, c)
+        contrib = lv.beta * el.f * (weight * camera_pdf_a * inv_count)
+    return contrib
+
+
+@ti.func
+def connection_technique(sc: ti.template(), cv, wo_l, t1, t2, q: ti.f32, lv, w, w_l, el, dist2: ti.f32, c):
+    """A connection's contribution before visibility and without the camera throughput:
+    w points from lv to cv at squared distance dist2, el = light_side(lv, w)."""
+    contrib = vec3(0.0)
+    wi_l = to_local(-w, t1, t2, cv.n)
+    ec = sc.bsdf_evaluate(cv.bsdf, wo_l, wi_l)
+    if ec.f.max() > 0.0 and el.f.max() > 0.0:
+        ql = sc.bsdf_continuation(lv.bsdf)
+        camera_fwd_a = vcm_mis.pdf_w_to_a(ec.pdf_fwd_w * q, dist2, w_l.z)
+        light_fwd_a = vcm_mis.pdf_w_to_a(el.pdf_fwd_w * ql, dist2, wi_l.z)
+        weight = vcm_mis.connection_weight(lv, cv, camera_fwd_a, ec.pdf_rev_w * q, light_fwd_a,
+                                           el.pdf_rev_w * ql, c)
+        g = ti.abs(wi_l.z * w_l.z) / dist2
+        contrib = ec.f * el.f * lv.beta * (weight * g)
+    return contrib
+
+
+@ti.func
 def light_to_camera(sc: ti.template(), v, c, with_weights: ti.template(), inv_count: ti.f32):
     """Light tracing (t = 1): light vertex v seen by the camera. Returns (seen, x, y,
     contribution), inv_count being 1 / the number of light subpaths."""
@@ -31,20 +74,12 @@ def light_to_camera(sc: ti.template(), v, c, with_weights: ti.template(), inv_co
         to_cam = sc.cam_origin - v.p
         dist2 = to_cam.dot(to_cam)
         w = to_cam / ti.sqrt(dist2)
-        t1, t2 = onb(v.n)
-        w_l = to_local(w, t1, t2, v.n)
-        e = sc.bsdf_evaluate(v.bsdf, to_local(v.wo, t1, t2, v.n), w_l)
-        if e.f.max() > 0.0:
-            camera_pdf_a = vcm_mis.pdf_w_to_a(sc.camera_pdf_w(-w), dist2, w_l.z)
-            weight = 1.0
-            if ti.static(with_weights):
-                q = sc.bsdf_continuation(v.bsdf)
-                weight = vcm_mis.light_trace_weight(v, camera_pdf_a, e.pdf_rev_w * q, c)
-            contrib = v.beta * e.f * (weight * camera_pdf_a * inv_count)
-            if contrib.max() > 0.0 and sc.visible(v.p, v.ng, sc.cam_origin, w):
-                seen = 1
-                px = ti.min(ti.cast(x, ti.i32), sc.width - 1)
-                py = ti.min(ti.cast(y, ti.i32), sc.height - 1)
+        w_l, e = light_side(sc, v, w)
+        contrib = camera_technique(sc, v, w, w_l, e, dist2, c, with_weights, inv_count)
+        if contrib.max() > 0.0 and sc.visible(v.p, v.ng, sc.cam_origin, w):
+            seen = 1
+            px = ti.min(ti.cast(x, ti.i32), sc.width - 1)
+            py = ti.min(ti.cast(y, ti.i32), sc.height - 1)
     return seen, px, py, contrib
 
 
@@ -53,25 +88,14 @@ def connect(sc: ti.template(), cv, wo_l, t1, t2, q: ti.f32, lv, c):
     """Connection (s, t >= 2) of light vertex lv to camera vertex cv, visibility included,
     without the camera throughput cv.beta (the caller's)."""
     total = vec3(0.0)
-    to_l = lv.p - cv.p
-    dist2 = to_l.dot(to_l)
+    to_c = cv.p - lv.p
+    dist2 = to_c.dot(to_c)
     if dist2 > 0.0:
-        w = to_l / ti.sqrt(dist2)
-        wi_l = to_local(w, t1, t2, cv.n)
-        ec = sc.bsdf_evaluate(cv.bsdf, wo_l, wi_l)
-        l1, l2 = onb(lv.n)
-        wl_l = to_local(-w, l1, l2, lv.n)
-        el = sc.bsdf_evaluate(lv.bsdf, to_local(lv.wo, l1, l2, lv.n), wl_l)
-        if ec.f.max() > 0.0 and el.f.max() > 0.0:
-            ql = sc.bsdf_continuation(lv.bsdf)
-            camera_fwd_a = vcm_mis.pdf_w_to_a(ec.pdf_fwd_w * q, dist2, wl_l.z)
-            light_fwd_a = vcm_mis.pdf_w_to_a(el.pdf_fwd_w * ql, dist2, wi_l.z)
-            weight = vcm_mis.connection_weight(lv, cv, camera_fwd_a, ec.pdf_rev_w * q, light_fwd_a,
-                                               el.pdf_rev_w * ql, c)
-            g = ti.abs(wi_l.z * wl_l.z) / dist2
-            contrib = ec.f * el.f * lv.beta * (weight * g)
-            if contrib.max() > 0.0 and sc.visible(cv.p, cv.ng, lv.p, lv.ng):
-                total = contrib
+        w = to_c / ti.sqrt(dist2)
+        w_l, el = light_side(sc, lv, w)
+        contrib = connection_technique(sc, cv, wo_l, t1, t2, q, lv, w, w_l, el, dist2, c)
+        if contrib.max() > 0.0 and sc.visible(cv.p, cv.ng, lv.p, lv.ng):
+            total = contrib
     return total
 
 

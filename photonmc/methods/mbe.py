@@ -392,24 +392,58 @@ class Mbe(Vcm):
         c = self.mis_constants()
         norms = self._norms[None]
         used = 0
-        if lv.length + 1 <= ti.static(self.max_depth):
-            seen, px, py, contrib = vcm_techniques.light_to_camera(sc, lv, c, True, norms[2])
-            if seen:
-                self._emit(vkey, py, px, contrib)
-                used = 1
-        # Connections: every vertex of the paired camera subpath.
+        # Light tracing (k = -1: the camera) and the connections to every vertex of the
+        # paired camera subpath (k >= 0) in one loop, so that the light side's BSDF and the
+        # shadow ray are inlined once: each copy of the BVH traversal costs compile time
+        # (docs/performance.md, "Compile time"). Same rays, same order as the techniques'
+        # own functions (kernels/vcm_techniques.py).
         pixel = self.pair[vkey]
-        py0 = pixel // sc.width
-        px0 = pixel - py0 * sc.width
         first = store.path_start[pixel]
         total = vec3(0.0)
-        for k in range(store.path_count[pixel]):
-            cv = store.vertex(store.order[first + k])
-            if lv.length + 1 + cv.length <= ti.static(self.max_depth):
-                t1, t2, wo_l, q = vcm_techniques.camera_frame(sc, cv)
-                total += cv.beta * vcm_techniques.connect(sc, cv, wo_l, t1, t2, q, lv, c)   # camera throughput
+        for k in range(-1, store.path_count[pixel]):
+            target = sc.cam_origin
+            px, py = 0, 0
+            cv = store.vertex(0)                   # read for k >= 0 only
+            if k >= 0:
+                cv = store.vertex(store.order[first + k])
+            reachable = 0
+            if k < 0:
+                if lv.length + 1 <= ti.static(self.max_depth):
+                    ok, x, y = sc.camera_raster(lv.p)
+                    if ok:
+                        reachable = 1
+                        px = ti.min(ti.cast(x, ti.i32), sc.width - 1)
+                        py = ti.min(ti.cast(y, ti.i32), sc.height - 1)
+            elif lv.length + 1 + cv.length <= ti.static(self.max_depth):
+                reachable = 1
+                target = cv.p
+            if reachable:
+                to_target = target - lv.p
+                dist2 = to_target.dot(to_target)
+                if dist2 > 0.0:
+                    w = to_target / ti.sqrt(dist2)
+                    w_l, el = vcm_techniques.light_side(sc, lv, w)
+                    contrib = vec3(0.0)
+                    if k < 0:
+                        contrib = vcm_techniques.camera_technique(sc, lv, w, w_l, el, dist2, c, True, norms[2])
+                    else:
+                        t1, t2, wo_c, q = vcm_techniques.camera_frame(sc, cv)
+                        contrib = cv.beta * vcm_techniques.connection_technique(sc, cv, wo_c, t1, t2, q, lv, w,
+                                                                                  w_l, el, dist2, c)
+                    if contrib.max() > 0.0:
+                        # the shadow ray's ends in the order each technique uses
+                        a, na, b, nb = cv.p, cv.ng, lv.p, lv.ng
+                        if k < 0:
+                            a, na, b, nb = lv.p, lv.ng, sc.cam_origin, w
+                        if sc.visible(a, na, b, nb):
+                            if k < 0:
+                                self._emit(vkey, py, px, contrib)
+                                used = 1
+                            else:
+                                total += contrib
         if total.max() > 0.0:
-            self._emit(vkey, py0, px0, total * norms[1])
+            py0 = pixel // sc.width
+            self._emit(vkey, py0, pixel - py0 * sc.width, total * norms[1])
             used = 1
         # Merging: the camera vertices within r of the light vertex, each to its own pixel.
         r2 = self.radius_sq()
