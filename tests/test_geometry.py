@@ -102,8 +102,35 @@ def test_closest_hit_matches_brute_force():
     assert (kind[~hit] == -1).all()
     # any-hit finds a hit exactly when the closest hit exists
     _, any_kind, _ = rc.cast(o, d, any_hit=True)
-    dscene.release()
     assert np.array_equal(any_kind >= 0, hit)
+    # a bound just short of the closest hit misses, one just past it finds it
+    tmax = np.where(hit, bt, 1.0).astype(np.float32)
+    _, short_kind, _ = rc.cast(o, d, tmax=tmax * 0.999)
+    _, long_kind, _ = rc.cast(o, d, tmax=tmax * 1.001)
+    dscene.release()
+    assert (short_kind[hit] == -1).all() and np.array_equal(long_kind[hit], kind[hit])
+
+
+def test_the_ray_log_records_every_ray_pt_traces():
+    """kernels/raycast.RayLog (tools/pt_stages.py): with max_depth 2 pt traces one camera ray
+    per pixel, at most one bounce ray after it, and at most one shadow ray (next-event
+    estimation) at the first hit; the logged closest-hit rays, cast again, all hit the closed box."""
+    import taichi as ti
+    from photonmc.kernels.raycast import RayLog
+    from photonmc.loop import Job
+    p = Job(params={"res": "8"}, method="pt", max_depth=2, seed=0).prepare()
+    log = RayLog(8 * 8 * 8)
+    p.method.dscene.ray_log = log
+    p.method.iterate()
+    ti.sync()
+    o, d, tmax, any_hit = log.rays()
+    assert int(log.count[None]) == len(o) <= log.capacity
+    assert 64 <= (~any_hit).sum() <= 128 and np.isinf(tmax[~any_hit]).all()
+    assert 0 < any_hit.sum() <= 64 and np.isfinite(tmax[any_hit]).all()
+    t, kind, _ = RayCaster(p.method.dscene).cast(o[~any_hit], d[~any_hit])
+    assert (kind >= 0).all()
+    log.release()
+    p.release()
 
 
 def test_released_field_trees_are_recycled_and_bounded(write_scene):

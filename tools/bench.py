@@ -3,7 +3,9 @@
     python tools/bench.py [--rays 2000000] [--pt-iterations 64] [--json out.json]
 
 1. BVH: incoherent rays that all hit a subdivided icosphere (81,920 triangles): photonmc's
-   Taichi BVH against Embree (through `embreex`, if installed) on the same rays.
+   Taichi BVH against Embree (through `embreex`, if installed) on the same rays. embreex
+   traces on one thread, so photonmc is measured on every core and on one (a second
+   process): the per-core ratio is the one that compares the traversal code.
 2. pt: samples/s on the bundled Cornell box at 256x256 against Mitsuba 3's `path` integrator
    (if installed) on the same scene file and max_depth.
 3. sppm: photon paths/s and iteration time on the Cornell box at 512x512, one photon path
@@ -23,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -105,6 +108,13 @@ def bench_pt(iterations):
     steady = r.stats["wall_seconds"]["steady_per_iteration"]
     result = {"scene": str(path.relative_to(ROOT)) if ROOT in path.parents else str(path), "resolution": [w, h],
               "max_depth": scene.max_depth, "photonmc_samples_per_s": w * h / steady}
+    result.update(mitsuba_samples_per_s(path, w * h))
+    return result
+
+
+def mitsuba_samples_per_s(path, pixels: int) -> dict:
+    """Mitsuba 3's `path` integrator on the same scene file: samples/s per variant."""
+    result = {}
     try:
         if "DRJIT_LIBLLVM_PATH" not in os.environ and Path("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1").exists():
             os.environ["DRJIT_LIBLLVM_PATH"] = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
@@ -116,7 +126,7 @@ def bench_pt(iterations):
                 np.array(mi.render(ms, spp=4))            # compile / warm up
                 spp = 64
                 secs = best_of(lambda ms=ms, spp=spp: np.array(mi.render(ms, spp=spp, seed=1)))   # forces lazy llvm evaluation
-                result[f"mitsuba_{variant}_samples_per_s"] = w * h * spp / secs
+                result[f"mitsuba_{variant}_samples_per_s"] = pixels * spp / secs
             except Exception as e:   # noqa: BLE001 - a missing variant is reported, not fatal
                 result[f"mitsuba_{variant}_samples_per_s"] = f"unavailable: {e}"[:120]
     except ImportError:
@@ -184,7 +194,6 @@ def cpu_info() -> dict:
 
 def bench_compile(scene="cornell-box", res=128) -> dict:
     """First image per method with a cold kernel cache, from tools/compile_times.py."""
-    import subprocess
     import tempfile
     with tempfile.TemporaryDirectory() as d:
         out = Path(d) / "compile.json"
@@ -200,7 +209,9 @@ def ratios(res: dict) -> dict:
     out = {}
     b, p = res["bvh"], res["pt"]
     if isinstance(b.get("embree_rays_per_s"), float):
-        out["bvh_rays_vs_embree"] = b["photonmc_rays_per_s"] / b["embree_rays_per_s"]
+        out["bvh_rays_all_cores_vs_embree_1_thread"] = b["photonmc_rays_per_s"] / b["embree_rays_per_s"]
+        if b.get("photonmc_1_thread_rays_per_s"):
+            out["bvh_rays_per_core_vs_embree"] = b["photonmc_1_thread_rays_per_s"] / b["embree_rays_per_s"]
     for variant in ("llvm_ad_rgb", "scalar_rgb"):
         peer = p.get(f"mitsuba_{variant}_samples_per_s")
         if isinstance(peer, float):
@@ -219,13 +230,22 @@ def main():
     ap.add_argument("--vcm-iterations", type=int, default=10)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--no-compile", action="store_true", help="skip the cold-cache first-image figures")
+    ap.add_argument("--bvh-only", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--json")
     args = ap.parse_args()
     from photonmc import runtime
     runtime.init("cpu", args.threads)
+    if args.bvh_only:
+        print(json.dumps(bench_bvh(args.rays)))
+        return
     res = {"cpu": cpu_info(), "cpu_threads": args.threads or os.cpu_count(), "bvh": bench_bvh(args.rays),
            "pt": bench_pt(args.pt_iterations), "sppm": bench_sppm(args.sppm_iterations),
            "vcm": bench_vcm(args.vcm_iterations)}
+    if args.threads != 1:      # the per-core figure, against embreex's one thread
+        one = subprocess.run([sys.executable, __file__, "--bvh-only", "--threads", "1", "--rays", str(args.rays)],
+                             check=True, capture_output=True, text=True)
+        res["bvh"]["photonmc_1_thread_rays_per_s"] = json.loads(one.stdout.strip().splitlines()[-1])["photonmc_rays_per_s"]
+    res["bvh"]["embree_threads"] = 1
     if not args.no_compile:
         res["compile"] = bench_compile()
     res["ratios"] = ratios(res)

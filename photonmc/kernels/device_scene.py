@@ -49,6 +49,9 @@ class DeviceScene:
         # since float32 round-off grows with coordinate magnitude.
         self.ray_eps = float(2e-5 * max(np.linalg.norm(hi - lo), np.abs(np.stack([lo, hi])).max()))
         self.extent = float(np.linalg.norm(hi - lo))
+        # A kernels/raycast.RayLog here before the first kernel compiles records every ray
+        # traced (tools/pt_stages.py); None compiles the recording out.
+        self.ray_log = None
         self.fields = FieldGroup("scene")
         self._upload_geometry(scene)
         self._upload_materials(scene)
@@ -230,9 +233,14 @@ class DeviceScene:
                 hit.b1 = 0.0
                 hit.b2 = 0.0
 
+    def _logs_rays(self) -> bool:
+        return self.ray_log is not None
+
     @ti.func
     def trace(self, o, d, tmax: ti.f32, any_hit: ti.template()):
         """Closest hit (or, with any_hit, the first hit found) in (0, tmax)."""
+        if ti.static(self._logs_rays()):
+            self.ray_log.record(o, d, tmax, any_hit)
         hit = Hit(t=tmax, kind=MISS, prim=-1, b1=0.0, b2=0.0)
         if ti.static(self.has_triangles):
             dd = d
