@@ -1,4 +1,5 @@
-"""A 4-wide BVH, measured against the binary one and Embree on the same rays (issue 15,
+"""A 4-wide BVH, and the binary one with leaves tested four triangles at a time, measured
+against the binary one and Embree on the same rays (issue 15,
 item 2: "a wide BVH, node tests written so LLVM vectorises them"). A study, not the renderer's
 traversal: the wide tree is collapsed from the binary SAH tree (scene/bvh.py), each node holds
 its four children's boxes lane by lane (x of all four, then y, ...) so that the four slab tests
@@ -13,7 +14,6 @@ excluded; the hits are checked against the binary tree's.
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +67,7 @@ def collapse(bvh):
 def make_caster(dscene, wide):
     import taichi as ti
 
-    from photonmc.kernels.device_scene import Hit, MISS, TRIANGLE
+    from photonmc.kernels.device_scene import MISS, Hit
     from photonmc.kernels.fields import FieldGroup
 
     lo, hi, child, count = wide
@@ -110,9 +110,7 @@ def make_caster(dscene, wide):
                     if counts[lane] > 0:
                         first = kids[lane]
                         for j in range(first, first + counts[lane]):
-                            t, b1, b2 = dscene_triangle(j, o, d, hit.t)
-                            if t < hit.t:
-                                hit.t, hit.kind, hit.prim, hit.b1, hit.b2 = t, TRIANGLE, j, b1, b2
+                            dscene._triangle(j, o, d, hit)
                     else:
                         key[lane] = t_enter[lane]
             # nearest inner child next, the others pushed far to near (a sorting network)
@@ -133,26 +131,6 @@ def make_caster(dscene, wide):
                     node = stack[sp]
         return hit
 
-    @ti.func
-    def dscene_triangle(i, o, d, t_max: ti.f32):
-        e1 = dscene.tri_e1[i]
-        e2 = dscene.tri_e2[i]
-        pv = d.cross(e2)
-        det = e1.dot(pv)
-        t_out, b1_out, b2_out = t_max, 0.0, 0.0
-        if det != 0.0:
-            inv_det = 1.0 / det
-            tv = o - dscene.tri_v0[i]
-            b1 = tv.dot(pv) * inv_det
-            if b1 >= 0.0 and b1 <= 1.0:
-                qv = tv.cross(e1)
-                b2 = d.dot(qv) * inv_det
-                if b2 >= 0.0 and b1 + b2 <= 1.0:
-                    t = e2.dot(qv) * inv_det
-                    if t > 0.0 and t < t_max:
-                        t_out, b1_out, b2_out = t, b1, b2
-        return t_out, b1_out, b2_out
-
     @ti.kernel
     def cast(o: ti.types.ndarray(dtype=ti.math.vec3, ndim=1), d: ti.types.ndarray(dtype=ti.math.vec3, ndim=1),
              tmax: ti.types.ndarray(dtype=ti.f32, ndim=1), t_out: ti.types.ndarray(dtype=ti.f32, ndim=1),
@@ -171,29 +149,95 @@ def make_caster(dscene, wide):
     return run
 
 
-def best_of(fn, runs=3):
-    best = float("inf")
-    for _ in range(runs):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
+def leaf4_scene(scene):
+    """A DeviceScene whose leaves test their triangles four at a time: each leaf's triangles
+    in packs of four stored lane by lane (Embree's triangle4 layout), one Moeller-Trumbore
+    over the four lanes, then the nearest lane in lane order (the scalar loop's tie-breaking)."""
+    import taichi as ti
+
+    from photonmc.kernels.device_scene import TRIANGLE, DeviceScene
+    from photonmc.kernels.fields import FieldGroup
+
+    @ti.data_oriented
+    class Leaf4Scene(DeviceScene):
+        def __init__(self, scene):
+            super().__init__(scene)
+            bvh = self.bvh
+            v = scene.tri_vertices[bvh.prim_order].astype(np.float64)
+            v0, e1, e2 = v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+            packs, pack_of_first = [], np.zeros(max(len(v), 1), np.int32)
+            for node in np.nonzero(bvh.count > 0)[0]:
+                first, count = int(bvh.right_or_first[node]), int(bvh.count[node])
+                pack_of_first[first] = len(packs)
+                for q in range(0, count, 4):
+                    rows = np.zeros((9, 4), np.float32)   # lanes past the leaf: zero edges, never hit
+                    for lane in range(min(4, count - q)):
+                        j = first + q + lane
+                        rows[0:3, lane], rows[3:6, lane], rows[6:9, lane] = v0[j], e1[j], e2[j]
+                    packs.append(rows)
+            f = FieldGroup("leaf4")
+            self.pack = f.vector(4, ti.f32, (len(packs), 9), np.stack(packs))
+            self.pack_of_first = f.scalar(ti.i32, len(pack_of_first), pack_of_first)
+            f.finalize()
+            self.leaf4_fields = f
+
+        @ti.func
+        def _leaf(self, first: ti.i32, count: ti.i32, o, d, hit: ti.template()):
+            p0 = self.pack_of_first[first]
+            for q in range((count + 3) // 4):
+                self._test4(p0 + q, first + 4 * q, o, d, hit)
+
+        @ti.func
+        def _test4(self, p, first, o, d, hit: ti.template()):
+            v0x, v0y, v0z = self.pack[p, 0], self.pack[p, 1], self.pack[p, 2]
+            e1x, e1y, e1z = self.pack[p, 3], self.pack[p, 4], self.pack[p, 5]
+            e2x, e2y, e2z = self.pack[p, 6], self.pack[p, 7], self.pack[p, 8]
+            pvx = d[1] * e2z - d[2] * e2y
+            pvy = d[2] * e2x - d[0] * e2z
+            pvz = d[0] * e2y - d[1] * e2x
+            det = e1x * pvx + e1y * pvy + e1z * pvz
+            inv_det = 1.0 / ti.select(det != 0.0, det, 1.0)
+            tvx, tvy, tvz = o[0] - v0x, o[1] - v0y, o[2] - v0z
+            b1 = (tvx * pvx + tvy * pvy + tvz * pvz) * inv_det
+            qvx = tvy * e1z - tvz * e1y
+            qvy = tvz * e1x - tvx * e1z
+            qvz = tvx * e1y - tvy * e1x
+            b2 = (d[0] * qvx + d[1] * qvy + d[2] * qvz) * inv_det
+            t = (e2x * qvx + e2y * qvy + e2z * qvz) * inv_det
+            ok = (det != 0.0) & (b1 >= 0.0) & (b1 <= 1.0) & (b2 >= 0.0) & (b1 + b2 <= 1.0) & (t > 0.0)
+            for lane in ti.static(range(4)):
+                if ok[lane] and t[lane] < hit.t:
+                    hit.t, hit.kind, hit.prim, hit.b1, hit.b2 = t[lane], TRIANGLE, first + lane, b1[lane], b2[lane]
+
+    return Leaf4Scene(scene)
 
 
-def measure(name, dscene, tri, o, d, tmax):
+def measure(name, scene, o, d, tmax):
+    from bench import best_of
     from photonmc.kernels.raycast import RayCaster
     o = np.ascontiguousarray(o, np.float32)
     d = np.ascontiguousarray(d, np.float32)
     tmax = np.ascontiguousarray(tmax, np.float32)
+    from photonmc.kernels.device_scene import DeviceScene
+    dscene = DeviceScene(scene)
+    tri = scene.tri_vertices
     binary = RayCaster(dscene)
-    wide = make_caster(dscene, collapse(dscene.bvh))
+    leaf4 = RayCaster(leaf4_scene(scene))
+    variants = {"wide": make_caster(dscene, collapse(dscene.bvh)),
+                "leaf4": lambda o, d, tmax: (lambda t, kind, prim: (t, prim))(*leaf4.cast(o, d, tmax=tmax))}
     binary.cast(o[:1000], d[:1000], tmax=tmax[:1000])
-    wide(o[:1000], d[:1000], tmax[:1000])
     t_b, kind_b, _ = binary.cast(o, d, tmax=tmax)
-    t_w, prim_w = wide(o, d, tmax)
-    agree = float(np.mean((t_b == t_w) | ((kind_b < 0) & (prim_w < 0))))
-    out = {"rays": len(o), "binary_rays_per_s": len(o) / best_of(lambda: binary.cast(o, d, tmax=tmax)),
-           "wide_rays_per_s": len(o) / best_of(lambda: wide(o, d, tmax)), "same_t_fraction": agree}
+    out = {"rays": len(o), "binary_rays_per_s": len(o) / best_of(lambda: binary.cast(o, d, tmax=tmax))}
+    _, _, prim_b = binary.cast(o, d, tmax=tmax)
+    for variant, caster in variants.items():
+        caster(o[:1000], d[:1000], tmax[:1000])
+        t_v, prim_v = caster(o, d, tmax)
+        out[f"{variant}_rays_per_s"] = len(o) / best_of(lambda caster=caster: caster(o, d, tmax))
+        out[f"{variant}_same_t_fraction"] = float(np.mean((t_b == t_v) | ((kind_b < 0) & (prim_v < 0))))
+        hit = kind_b >= 0
+        both = hit & (prim_v >= 0)
+        out[f"{variant}_hits_missed_fraction"] = float(np.mean(prim_v[hit] < 0))
+        out[f"{variant}_max_relative_t_difference"] = float(np.max(np.abs(t_v[both] - t_b[both]) / t_b[both]))
     try:
         from embreex import rtcore_scene as rtcs
         from embreex.mesh_construction import TriangleMesh
@@ -218,7 +262,6 @@ def main():
 
     from bench import icosphere_rays
     from photonmc import runtime
-    from photonmc.kernels.device_scene import DeviceScene
     from photonmc.kernels.raycast import RayLog
     from photonmc.loop import Job
     from photonmc.scene.scene import Bsdf, Camera, Scene
@@ -231,7 +274,7 @@ def main():
                   np.array([[0, -1]], np.int32), np.ones((1, 3)), tri, np.repeat(mesh.face_normals[:, None], 3, 1),
                   np.zeros(n, np.int32), np.r_[0, -np.ones(n - 1)].astype(np.int32), np.zeros((0, 3)),
                   np.zeros(0), np.zeros(0, bool), np.zeros(0, np.int32), np.zeros(0, np.int32))
-    measure(f"icosphere ({n} triangles), incoherent rays", DeviceScene(scene), tri, o, d,
+    measure(f"icosphere ({n} triangles), incoherent rays", scene, o, d,
             np.full(len(o), np.inf, np.float32))
 
     path = ROOT / "scenes" / args.scene / "scene.xml" if not args.scene.endswith(".xml") else Path(args.scene)
@@ -245,7 +288,7 @@ def main():
     ti.sync()
     ro, rd, rt, any_hit = log.rays()
     measure(f"{path.parent.name} ({len(p.scene.tri_vertices)} triangles), pt's closest-hit rays",
-            DeviceScene(p.scene), p.scene.tri_vertices, ro[~any_hit], rd[~any_hit], rt[~any_hit])
+            p.scene, ro[~any_hit], rd[~any_hit], rt[~any_hit])
 
 
 if __name__ == "__main__":

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -21,15 +20,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
-
-
-def best_of(fn, runs=3):
-    best = float("inf")
-    for _ in range(runs):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
 
 
 def main():
@@ -42,6 +32,7 @@ def main():
     args = ap.parse_args()
 
     import taichi as ti
+    from bench import best_of
     from photonmc import runtime
     from photonmc.kernels.raycast import RayCaster, RayLog
     from photonmc.loop import Job

@@ -27,14 +27,22 @@ def _size(field) -> int:
 
 
 @ti.func
-def _set_flat(f: ti.template(), flat, value):
-    """f's scalar number `flat` in numpy's C order (indices, then components) = value."""
-    n = ti.static(_components(f))
-    rest = flat // n
+def _field_index(f: ti.template(), flat):
+    """The field index holding f's scalar number `flat` in numpy's C order (indices, then
+    components); the component is flat % _components(f)."""
+    rest = flat // ti.static(_components(f))
     idx = ti.Vector([0] * ti.static(len(f.shape)))
     for d in ti.static(range(len(f.shape) - 1, -1, -1)):
         idx[d] = rest % ti.static(f.shape[d])
         rest //= ti.static(f.shape[d])
+    return idx
+
+
+@ti.func
+def _set_flat(f: ti.template(), flat, value):
+    """f's scalar number `flat` = value."""
+    n = ti.static(_components(f))
+    idx = _field_index(f, flat)
     if ti.static(n == 1):
         f[idx] = value
     else:
@@ -48,13 +56,9 @@ def _set_flat(f: ti.template(), flat, value):
 
 @ti.func
 def _get_flat(f: ti.template(), flat):
-    """f's scalar number `flat` in numpy's C order (indices, then components)."""
+    """f's scalar number `flat`."""
     n = ti.static(_components(f))
-    rest = flat // n
-    idx = ti.Vector([0] * ti.static(len(f.shape)))
-    for d in ti.static(range(len(f.shape) - 1, -1, -1)):
-        idx[d] = rest % ti.static(f.shape[d])
-        rest //= ti.static(f.shape[d])
+    idx = _field_index(f, flat)
     out = ti.cast(0, f.dtype)
     if ti.static(not isinstance(f, ti.MatrixField)):     # a 1-vector still reads as a vector
         out = f[idx]

@@ -205,6 +205,13 @@ class DeviceScene:
                         hit.b2 = b2
 
     @ti.func
+    def _leaf(self, first: ti.i32, count: ti.i32, o, d, hit: ti.template()):
+        """A leaf's triangles first .. first + count - 1 (tools/bvh_wide_study.py overrides it
+        to test them four at a time)."""
+        for j in range(first, first + count):
+            self._triangle(j, o, d, hit)
+
+    @ti.func
     def _sphere(self, i: ti.i32, o, d, hit: ti.template()):
         """Ray-sphere with the numerically robust discriminant (Haines et al., RT Gems ch. 7)."""
         c = self.sph_center[i]
@@ -257,9 +264,7 @@ class DeviceScene:
             while node >= 0:
                 count = self.node_count[node]
                 if count > 0:
-                    first = self.node_right_or_first[node]
-                    for j in range(first, first + count):
-                        self._triangle(j, o, d, hit)
+                    self._leaf(self.node_right_or_first[node], count, o, d, hit)
                     node = -1
                     if ti.static(any_hit):
                         if hit.kind != MISS:
