@@ -1,9 +1,10 @@
 """Fills, uploads and downloads of many fields in one kernel launch.
 
 `field.fill(v)`, `field.from_numpy(a)` and `field.to_numpy()` compile one small kernel per
-field (the field is a template argument): 40-60 of them before a guided method's first image, each costing tens of
-milliseconds of compilation with a cold cache. One loop over all the fields' scalars together
-compiles once per batch and several times faster (docs/performance.md, "Compile time").
+field (the field is a template argument): 40-60 of them before a guided method's first
+image and about 40 more in its first state save, each costing tens of milliseconds of
+compilation with a cold cache. One loop over all the fields' scalars together compiles once
+per batch and several times faster (docs/performance.md, "Compile time").
 No `from __future__ import annotations` here: Taichi reads the kernels' annotations as objects.
 """
 from collections import OrderedDict
