@@ -13,6 +13,7 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "False")   # keep Taichi's b
 
 import taichi as ti
 
+from . import taichi_frontend
 from .errors import SettingsError
 
 _current: tuple | None = None
@@ -46,6 +47,9 @@ def init(arch: str = "cpu", threads: int | None = None, debug: bool = False, ker
                   cfg_optimization=False)
     if threads is not None and arch == "cpu":
         kwargs["cpu_max_num_threads"] = threads
+    # Taichi's front end re-reads and re-formats the same source at every inlined call; the
+    # memo hands it the same strings sooner (mbe's cold first image 9.4 -> 7.4 s; module doc).
+    taichi_frontend.install()
     with contextlib.redirect_stdout(io.StringIO()):   # ti.init prints "Starting on arch=..."
         ti.init(**kwargs)
     if arch != "cpu" and ti.lang.impl.current_cfg().arch == ti.cpu:

@@ -1,5 +1,6 @@
 """The compiler settings of photonmc/runtime.py change how long kernels take to compile, not
 what they compute beyond float rounding (docs/performance.md, "Compile time")."""
+import contextlib
 import json
 import subprocess
 import sys
@@ -84,3 +85,103 @@ def test_advanced_optimisation_is_turned_off_for_one_block_only():
     with runtime.advanced_optimization(False):
         make_kernel()(lean)
     np.testing.assert_allclose(lean, plain, rtol=0, atol=1e-6 * float(np.abs(plain).max()))
+
+
+def _kernel_with_inlined_calls():
+    """A kernel whose function is inlined at several call sites, with statements over several
+    lines, loops and branches: the nodes whose position messages Taichi formats."""
+    import taichi as ti
+
+    @ti.func
+    def shade(x, k: ti.template()):
+        s = 0.0
+        for j in range(k):
+            if x > j:
+                s += ti.sin(x * j) + \
+                    ti.cos(x)
+            else:
+                s -= (x
+                      * 0.5)
+        while s > 10.0:
+            s -= 10.0
+        return s
+
+    @ti.kernel
+    def run(out: ti.types.ndarray()):
+        for i in range(out.shape[0]):
+            x = ti.cast(i, ti.f32) * 0.1
+            out[i] = shade(x, 3) + shade(x * 2.0, 4) - shade(
+                x, 3)
+    return run
+
+
+def test_frontend_memo_gives_taichis_own_strings():
+    """photonmc/taichi_frontend.py: every position message and source read the caches answer
+    equals what Taichi's own functions give for the same node or function, and a kernel
+    compiled with the caches computes what it computes without them."""
+    from taichi.lang import kernel_impl
+    from taichi.lang.ast import ast_transformer_utils as utils
+
+    from photonmc import taichi_frontend
+
+    assert taichi_frontend.installed()
+    original = taichi_frontend.ORIGINALS["get_pos_info"]
+    memo = utils.ASTTransformerContext.get_pos_info
+    assert memo is not original
+    compared = []
+
+    def checked(self, node):
+        got = memo(self, node)
+        assert got == original(self, node)
+        compared.append(got)
+        return got
+
+    utils.ASTTransformerContext.get_pos_info = checked
+    try:
+        with_memo = np.zeros(64, np.float32)
+        _kernel_with_inlined_calls()(with_memo)
+    finally:
+        utils.ASTTransformerContext.get_pos_info = memo
+    assert len(compared) > 100 and len(set(compared)) < len(compared)   # repeats were served from the cache
+
+    lines, _ = kernel_impl.getsourcelines(_kernel_with_inlined_calls)
+    lines.append("mutated")       # a caller's list is its own: the next read is unchanged
+    assert kernel_impl.getsourcelines(_kernel_with_inlined_calls) == \
+        taichi_frontend.ORIGINALS["getsourcelines"](_kernel_with_inlined_calls)
+    assert kernel_impl.getsourcefile(_kernel_with_inlined_calls) == \
+        taichi_frontend.ORIGINALS["getsourcefile"](_kernel_with_inlined_calls)
+    assert kernel_impl.textwrap.fill("\tx = 1\n", tabsize=4, width=9999) == \
+        taichi_frontend.ORIGINALS["textwrap"].fill("\tx = 1\n", tabsize=4, width=9999)
+
+    with taichi_frontend.original_front_end():
+        without = np.zeros(64, np.float32)
+        _kernel_with_inlined_calls()(without)
+    assert utils.ASTTransformerContext.get_pos_info is memo
+    np.testing.assert_array_equal(with_memo, without)
+
+
+def test_compile_errors_name_the_same_line_with_the_memo():
+    """A user's (or a developer's) error inside an inlined function is reported at the same
+    file and line, in the same words, with and without the caches."""
+    import pytest
+    import taichi as ti
+
+    from photonmc import taichi_frontend
+
+    def broken():
+        @ti.func
+        def helper(x):
+            return x + undefined_name        # noqa: F821 -- the error under test
+
+        @ti.kernel
+        def run() -> ti.f32:
+            return helper(1.0) + helper(2.0)
+        return run
+
+    messages = []
+    for context in (contextlib.nullcontext(), taichi_frontend.original_front_end()):
+        with context, pytest.raises(ti.TaichiCompilationError) as raised:
+            broken()()
+        messages.append(str(raised.value))
+    assert messages[0] == messages[1]
+    assert "undefined_name" in messages[0] and "test_compile_settings.py" in messages[0]

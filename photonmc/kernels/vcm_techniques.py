@@ -84,22 +84,6 @@ def light_to_camera(sc: ti.template(), v, c, with_weights: ti.template(), inv_co
 
 
 @ti.func
-def connect(sc: ti.template(), cv, wo_l, t1, t2, q: ti.f32, lv, c):
-    """Connection (s, t >= 2) of light vertex lv to camera vertex cv, visibility included,
-    without the camera throughput cv.beta (the caller's)."""
-    total = vec3(0.0)
-    to_c = cv.p - lv.p
-    dist2 = to_c.dot(to_c)
-    if dist2 > 0.0:
-        w = to_c / ti.sqrt(dist2)
-        w_l, el = light_side(sc, lv, w)
-        contrib = connection_technique(sc, cv, wo_l, t1, t2, q, lv, w, w_l, el, dist2, c)
-        if contrib.max() > 0.0 and sc.visible(cv.p, cv.ng, lv.p, lv.ng):
-            total = contrib
-    return total
-
-
-@ti.func
 def can_merge(cv_n, lv_n, lv_wo) -> ti.i32:
     """The light vertex arrives on the camera vertex's side of one surface."""
     return lv_wo.dot(cv_n) > 0.0 and lv_n.dot(cv_n) >= NORMAL_COS_MIN

@@ -252,10 +252,10 @@ class Vcm(Method):
         cv = PathVertex(p=s.p, ng=s.ng, n=n, wo=wo, beta=w.beta, length=w.length, bsdf=b, dvcm=acc.m.dvcm,
                         dvc=acc.m.dvc, dvm=acc.m.dvm)
         if ti.static(self.use_vc):
-            if w.length + 1 <= acc.max_depth:
-                acc.L += w.beta * self._next_event(cv, wo_l, t1, t2, q, state, c)
-            acc.L += w.beta * self._connect_to_light_path(self.store, acc.pixel, cv, wo_l, t1, t2, q, c,
-                                                          acc.max_depth)
+            nee, connected = self._nee_and_connections(self.store, acc.pixel, cv, wo_l, t1, t2, q, state, c,
+                                                       acc.max_depth)
+            acc.L += w.beta * nee
+            acc.L += w.beta * connected
         if ti.static(self.use_vm):
             acc.merged += self._merge(self.store, self.grid, cv, wo_l, t1, t2, q, c, acc.max_depth,
                                       acc.vm_normalization)
@@ -293,18 +293,51 @@ class Vcm(Method):
         return contrib
 
     @ti.func
-    def _connect_to_light_path(self, store: ti.template(), pixel: ti.i32, cv, wo_l, t1, t2, q: ti.f32, c,
-                               max_depth: ti.i32):
-        """Connections (s, t >= 2) to every vertex of the light subpath paired with this pixel
-        (the one with the pixel's index, as in SmallVCM: N_L = pixels by default)."""
+    def _nee_and_connections(self, store: ti.template(), pixel: ti.i32, cv, wo_l, t1, t2, q: ti.f32,
+                             state: ti.template(), c, max_depth: ti.i32):
+        """Next-event estimation (s = 1) at camera vertex cv and its connections (s, t >= 2) to
+        every vertex of the light subpath paired with this pixel (the one with the pixel's
+        index, as in SmallVCM: N_L = pixels by default), without cv's throughput. One loop
+        (k = -1: next-event estimation) with one shadow-ray call site, because every inlined
+        copy of the BVH traversal costs compile time (docs/performance.md, "Compile time");
+        the same rays, random numbers and sums, in the same order, as one technique after the
+        other. Returns (next-event estimate, connections' sum)."""
+        sc = self.dscene
+        nee = vec3(0.0)
         total = vec3(0.0)
         path = pixel % ti.static(self.n_light)
         first = store.path_start[path]
-        for k in range(store.path_count[path]):
-            lv = store.vertex(store.order[first + k])
-            if lv.length + 1 + cv.length <= max_depth:
-                total += vcm_techniques.connect(self.dscene, cv, wo_l, t1, t2, q, lv, c)
-        return total
+        k0 = -1 if cv.length + 1 <= max_depth else 0
+        for k in range(k0, store.path_count[path]):
+            contrib = vec3(0.0)
+            q_p, q_n = cv.p, cv.ng               # the far end of the shadow ray
+            if k < 0:
+                il = sc.illuminate(cv.p, rng.next_float(state), rng.next_float(state), rng.next_float(state))
+                if il.radiance.max() > 0.0:
+                    wi_l = to_local(il.wi, t1, t2, cv.n)
+                    e = sc.bsdf_evaluate(cv.bsdf, wo_l, wi_l)
+                    if e.f.max() > 0.0:
+                        w = vcm_mis.next_event_weight(cv, il.direct_pdf_w, il.emission_pdf_w, il.cos_light,
+                                                      wi_l.z, e.pdf_fwd_w * q, e.pdf_rev_w * q, c, True)
+                        contrib = e.f * il.radiance * (w * ti.abs(wi_l.z) / il.direct_pdf_w)
+                        q_p, q_n = il.p, il.n
+            else:
+                lv = store.vertex(store.order[first + k])
+                if lv.length + 1 + cv.length <= max_depth:
+                    to_c = cv.p - lv.p
+                    dist2 = to_c.dot(to_c)
+                    if dist2 > 0.0:
+                        w = to_c / ti.sqrt(dist2)
+                        w_l, el = vcm_techniques.light_side(sc, lv, w)
+                        contrib = vcm_techniques.connection_technique(sc, cv, wo_l, t1, t2, q, lv, w, w_l, el,
+                                                                      dist2, c)
+                        q_p, q_n = lv.p, lv.ng
+            if contrib.max() > 0.0 and sc.visible(cv.p, cv.ng, q_p, q_n):
+                if k < 0:
+                    nee = contrib
+                else:
+                    total += contrib
+        return nee, total
 
     @ti.func
     def _merge(self, store: ti.template(), grid: ti.template(), cv, wo_l, t1, t2, q: ti.f32, c, max_depth: ti.i32,
