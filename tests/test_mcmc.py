@@ -98,7 +98,7 @@ def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="st
                      suffix_mutation=suffix_mutation, suffix_starts=(1,), block_starts=block_starts,
                      base_records_in_burn_in=base_records_in_burn_in)
     if theta is not None:
-        pool.theta.fill(theta)
+        pool.set_theta(theta)
     b_sum = np.zeros(levels)
     last = None
     for it in range(passes):

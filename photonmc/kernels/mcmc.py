@@ -60,7 +60,7 @@ import taichi as ti
 
 from .. import runtime
 from . import rng
-from .batch import download_fields, fill_fields
+from .batch import download_fields, fill_fields, upload_fields
 from .fields import FieldGroup
 
 # Per-level counters (int64, atomics, so they are exact and order-independent).
@@ -263,6 +263,18 @@ class ChainPool:
                     ([(self.block_theta, THETA_START), (self.block_counters, 0)] if self.n_blocks > 1 else []))
         self.level_slot.from_numpy(np.arange(self.n_slots, dtype=np.int32).reshape(self.n_chains, self.n_levels))
         self.adapt_passes[:] = 0
+        # theta lives on the host too (float32, as the fields hold it), so that adapting it
+        # reads nothing back: every small read or write of a field compiles a kernel of its
+        # own with a cold cache (docs/performance.md, "Compile time").
+        self.theta_host = np.full(self.n_levels, THETA_START, np.float32)
+        self.block_theta_host = np.full((self.n_levels, max(self.n_blocks, 1)), THETA_START, np.float32)
+
+    def set_theta(self, value: float) -> None:
+        """Every level's (and block's) mutation size, on the host and in the fields."""
+        self.theta_host[:] = value
+        self.block_theta_host[:] = value
+        upload_fields([(self.theta, self.theta_host)] +
+                      ([(self.block_theta, self.block_theta_host)] if self.n_blocks > 1 else []))
 
     def begin_pass(self, model):
         """The target changed (new measurement points): every stored state becomes stale and
@@ -322,26 +334,29 @@ class ChainPool:
             b[level] = b[level - 1] * tallies["mean_ratio"][level - 1]
         return b
 
-    def adapt(self, tallies: dict, target_acceptance: float) -> None:
+    def adapt(self, tallies: dict, target_acceptance: float, uploads=()) -> None:
+        """Adapt theta per level (and block) to this pass's acceptance. `uploads`: more
+        (field, array) pairs the caller writes after the pass, sent in the same batch."""
         c = tallies["counters"]
-        theta = self.theta.to_numpy()
+        theta = self.theta_host
         for level in range(self.n_levels):
             n = int(c[level, MUTATIONS])
             if n > 0:
                 self.adapt_passes[level] += 1
                 theta[level] = adapt_theta(float(theta[level]), c[level, ACCEPTED] / n, target_acceptance,
                                            int(self.adapt_passes[level]))
-        self.theta.from_numpy(theta.astype(np.float32))
+        pairs = [(self.theta, theta)]
         if self.n_blocks > 1:
             bc = tallies["block_counters"]
-            bt = self.block_theta.to_numpy()
+            bt = self.block_theta_host
             for level in range(self.n_levels):
                 k = int(self.adapt_passes[level])
                 for b in range(self.n_blocks):
                     if bc[level, b, 0] > 0 and k > 0:
                         bt[level, b] = adapt_theta(float(bt[level, b]), bc[level, b, 1] / bc[level, b, 0],
                                                    target_acceptance, k)
-            self.block_theta.from_numpy(bt.astype(np.float32))
+            pairs.append((self.block_theta, bt))
+        upload_fields(pairs + list(uploads))
 
     # -- kernels ------------------------------------------------------------------------
     @ti.kernel

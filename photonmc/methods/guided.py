@@ -249,9 +249,8 @@ class GuidedPhotons(Sppm):
         self.level_scale.from_numpy(scale * (self.power_scale / FIXED_ONE))
         self._after_pass(scale)
         self._update_balanced(n_p)
-        self.pool.adapt(tallies, self.target_acceptance)
-        if (b > 0).all():
-            self.b_mis.from_numpy(b.astype(np.float32))
+        self.pool.adapt(tallies, self.target_acceptance,
+                        uploads=[(self.b_mis, b.astype(np.float32))] if (b > 0).all() else [])
         self.totals += tallies["counters"]
         self.b_last = b
         if b[0] > 0:
@@ -288,7 +287,7 @@ class GuidedPhotons(Sppm):
         s = super().method_stats()
         s.pop("fraction_of_photon_paths_depositing", None)
         t = self.totals
-        theta = self.pool.theta.to_numpy()
+        theta = self.pool.theta_host
         levels = []
         for level in range(self.n_levels):
             mut = int(t[level, MUTATIONS])
@@ -297,7 +296,7 @@ class GuidedPhotons(Sppm):
                 "mutations": mut,
                 "acceptance": float(t[level, ACCEPTED]) / mut if mut else None,
                 "theta": float(theta[level]) if self.mutation_blocks <= 1 else None,   # blocks: block_theta
-                "block_theta": (self.pool.block_theta.to_numpy()[level].tolist() if self.mutation_blocks > 1 else None),
+                "block_theta": (self.pool.block_theta_host[level].tolist() if self.mutation_blocks > 1 else None),
                 "suffix_moves": int(t[level, SUFFIX_TRIED]),
                 "suffix_acceptance": (float(t[level, SUFFIX_ACCEPTED]) / t[level, SUFFIX_TRIED]
                                       if t[level, SUFFIX_TRIED] else None),
@@ -330,11 +329,11 @@ class GuidedPhotons(Sppm):
     def progress_fields(self) -> str:
         t = self.totals
         mut = max(int(t[0, MUTATIONS]), 1)
-        theta = self.pool.theta.to_numpy()
+        theta = self.pool.theta_host
         b = "  ".join(f"b{k} {v:.2g}" for k, v in enumerate(self.b_last))
         moves = ""       # the alternative mutations' own figures, where they are on
         if self.mutation_blocks > 1:
-            moves += "  block theta " + "/".join(f"{x:.2g}" for x in self.pool.block_theta.to_numpy()[0])
+            moves += "  block theta " + "/".join(f"{x:.2g}" for x in self.pool.block_theta_host[0])
         if t[0, SUFFIX_TRIED]:
             moves += f"  suffix acc {t[0, SUFFIX_ACCEPTED] / t[0, SUFFIX_TRIED]:.2f}"
         return (f"{super().progress_fields()}  visible {t[0, UNIFORM_VISIBLE] / max(int(t[0, UNIFORM]), 1):.2g}  "

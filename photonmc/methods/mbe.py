@@ -40,7 +40,7 @@ from .. import runtime
 from ..errors import SettingsError
 from ..kernels import vcm_techniques
 from ..kernels.camera_walk import CONTINUE
-from ..kernels.batch import fill_fields
+from ..kernels.batch import download_fields, fill_fields
 from ..kernels.fields import FieldGroup
 from ..kernels.mcmc import (
     ACCEPTED,
@@ -206,6 +206,7 @@ class Mbe(Vcm):
         fill_fields([(self.b_mis, 1.0), (self.pre_scale, 1.0), (self.light_counters, 0), (self.light_frame, 0),
                      (self.list_stats, 0)])
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
+        self.pre_scale_host = np.ones(self.n_levels, np.float32)   # pre_scale's value, read without a kernel
         self.steps_last = self.n_light
         self.b_last = np.zeros(self.n_levels)
         self.b_sum = np.zeros(self.n_levels)
@@ -261,14 +262,15 @@ class Mbe(Vcm):
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * steps / np.maximum(recorded, 1e-300), 0.0)
-        pre = self.pre_scale.to_numpy().astype(np.float64)
-        self._add_light_frames(*(scale / pre))
+        self._add_light_frames(*(scale / self.pre_scale_host.astype(np.float64)))
         self.film.flush()
-        self.pool.adapt(tallies, self.target_acceptance)
+        uploads = []
         if (b > 0).all():
-            self.b_mis.from_numpy(b.astype(np.float32))
+            uploads.append((self.b_mis, b.astype(np.float32)))
         if (scale > 0).all():
-            self.pre_scale.from_numpy(scale.astype(np.float32))
+            self.pre_scale_host = scale.astype(np.float32)
+            uploads.append((self.pre_scale, self.pre_scale_host))
+        self.pool.adapt(tallies, self.target_acceptance, uploads=uploads)
         self.totals += tallies["counters"]
         self.b_last = b
         if b[0] > 0:
@@ -485,7 +487,7 @@ class Mbe(Vcm):
 
     def method_stats(self):
         t = self.totals
-        theta = self.pool.theta.to_numpy()
+        theta = self.pool.theta_host
         levels = []
         for level, name in enumerate(LEVELS):
             mut = int(t[level, MUTATIONS])
@@ -498,7 +500,7 @@ class Mbe(Vcm):
                 "starts_resampled": int(t[level, SEEDED_RESAMPLED]),
                 "starts_copied": int(t[level, SEEDED_COPIED]),
             })
-        lc = self.light_counters.to_numpy()
+        lc, ls = download_fields((self.light_counters, self.list_stats))     # one kernel for both
         vertices = self.store.capacity
         camera_bytes = vertices * BYTES_PER_STORED_VERTEX
         chain_bytes = self.pool.fields.nbytes + self.chain_fields.nbytes
@@ -511,9 +513,9 @@ class Mbe(Vcm):
             "swap_acceptance": (float(t[0, SWAPS_ACCEPTED]) / t[0, SWAPS_TRIED] if t[0, SWAPS_TRIED] else None),
             "levels": levels,
             "light_subpaths_traced": int(lc[0]),
-            "deposits_from_kept_splat_lists": int(self.list_stats.to_numpy()[0]),
-            "splat_lists_overflowed": int(self.list_stats.to_numpy()[1]),
-            "splat_list_mean_length": float(self.list_stats.to_numpy()[2]) / max(int(self.list_stats.to_numpy()[3]), 1),
+            "deposits_from_kept_splat_lists": int(ls[0]),
+            "splat_lists_overflowed": int(ls[1]),
+            "splat_list_mean_length": float(ls[2]) / max(int(ls[3]), 1),
             "light_segments_per_subpath": float(lc[1]) / max(int(lc[0]), 1),
             "camera_vertices_last_iteration": self.vertices_last,
             "camera_vertices_mean": self.vertices_sum / max(self.iterations, 1),
