@@ -118,6 +118,12 @@ BOOTSTRAP_FRACTION = 0.25
 # the whole pass and the exchanges start with the second half (option base_in_burn_in):
 # RMSE x0.90-0.95 at equal iterations on three gap-lit rooms, 1.00 on the attic and the
 # slatted-window rooms (docs/mbe.md, "The visibility chain through the burn-in").
+# Several camera subpaths per pixel may share one chain pass (--camera-paths), as several
+# camera paths share one photon pass in the guided methods (docs/effort.md): a pass is long
+# where few light subpaths contribute, and one camera subpath per pixel then leaves the
+# camera-side error (emitter hits, next-event estimation) to few samples.
+MAX_CAMERA_PATHS = 64
+CAMERA_SUBPATH_BUDGET = 1 << 20
 SPLAT_LIST_CAPACITY = 1024   # entries kept per splat list (16 bytes each); longer lists are traced again
 
 
@@ -129,12 +135,15 @@ class Mbe(Vcm):
     independent_iterations = False      # the chains carry their states and mutation sizes on
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
-               "base_in_burn_in": True}
+               "base_in_burn_in": True, "camera_paths": None}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
 
     def __init__(self, dscene, settings):
+        # The camera subpaths per pixel size the vertex store, which Vcm.__init__ allocates.
+        self.camera_paths = self._camera_paths_option(settings.options.get("camera_paths"),
+                                                      dscene.width * dscene.height)
         super().__init__(dscene, settings)
         opts = self.options
         if opts["mis"] not in ("modified", "plain"):
@@ -160,7 +169,8 @@ class Mbe(Vcm):
         w, h, c = dscene.width, dscene.height, self.n_chains
         f = FieldGroup("mbe-chains")
         self.visit_mode = f.scalar(ti.i32, c)
-        self.pair = f.scalar(ti.i32, c)
+        self.pair = f.scalar(ti.i32, c)                  # the camera subpath a state connects to
+        self.n_subpaths = f.scalar(ti.i32, ())           # camera subpaths this iteration (K x pixels)
         self.probe_sum = f.vector(3, ti.i64, c)          # F(u) in fixed point (order-independent)
         self.deposit_weight = f.vector(self.n_levels, ti.f32, c)
         self.light_frame = f.vector(3, ti.i64, (self.n_levels, h, w))
@@ -180,9 +190,20 @@ class Mbe(Vcm):
         self.chain_fields = f
         self._reset_chains()
 
+    @staticmethod
+    def _camera_paths_option(value, n_pixels: int) -> int:
+        """--camera-paths K: camera subpaths per pixel per iteration, at most MAX_CAMERA_PATHS
+        and CAMERA_SUBPATH_BUDGET subpaths in all."""
+        k = 1 if value is None else value
+        most = max(1, min(MAX_CAMERA_PATHS, CAMERA_SUBPATH_BUDGET // n_pixels))
+        if not isinstance(k, (int, np.integer)) or isinstance(k, bool) or not 1 <= k <= most:
+            raise SettingsError(f"--camera-paths for mbe must be a number from 1 to {most} at this resolution "
+                                f"(at most {CAMERA_SUBPATH_BUDGET} camera subpaths per iteration), got '{value}'")
+        return int(k)
+
     def _stored_paths(self) -> int:
-        """mbe stores the camera subpaths' vertices, one subpath per pixel."""
-        return self.n_pixels
+        """mbe stores the camera subpaths' vertices, --camera-paths subpaths per pixel."""
+        return self.n_pixels * self.camera_paths
 
     def _allocate_store(self, capacity: int):
         super()._allocate_store(capacity)
@@ -233,18 +254,26 @@ class Mbe(Vcm):
         it = self.iteration_index
         self.radius = self._radius_at(it)
         steps = self._steps_this_pass()
-        # Sample counts relative to the connections', which count N_L / pixels per camera subpath.
+        k = self.camera_paths
+        n_subpaths = k * self.n_pixels
+        # Sample counts relative to the connections': a light subpath connects to one of the
+        # K x pixels camera subpaths, so a pixel gets N_L / pixels connections whatever K;
+        # merging (every camera vertex with every light vertex) and the camera-only
+        # techniques (emitter hits, NEE) make K times as many samples per pixel, light
+        # tracing as many as with one (docs/mbe.md, "Camera subpaths per pass").
         ratio = self.n_pixels / steps
-        eta = PI * self.radius ** 2 * self.n_pixels
-        kappa = (float(self.b_mis[0]) if self.modified_mis else 1.0) * ratio
+        eta = PI * self.radius ** 2 * self.n_pixels * k
+        kappa = (float(self.b_mis[0]) if self.modified_mis else 1.0) * ratio * k
         self.consts[None] = [eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2]
-        vm_normalization = 1.0 / (PI * self.radius ** 2 * steps)
+        self.n_subpaths[None] = n_subpaths
+        # A pixel's estimate is the mean over its K subpaths: merging at each is 1/K of it.
+        vm_normalization = 1.0 / (PI * self.radius ** 2 * steps * k)
         while True:
-            self.store.clear(self.n_pixels)
+            self.store.clear(n_subpaths)
             # Compiled without Taichi's whole-kernel CSE, like the chain kernel (kernels/mcmc.py):
             # 0.6-1 s less to the first image, about 0.5 % of an iteration (docs/performance.md).
             with runtime.advanced_optimization(False):
-                self._camera_pass(self.store, self.fields, self.seed_u32, it, self.max_depth, vm_normalization)
+                self._camera_pass(self.store, self.fields, self.seed_u32, it, self.max_depth, vm_normalization, k)
             n = int(self.store.count[None])
             if n <= self.store.capacity:
                 break
@@ -253,7 +282,7 @@ class Mbe(Vcm):
             self.store_grown += 1
         self.vertices_last = n
         self.vertices_sum += n
-        self.store.finish(self.n_pixels)
+        self.store.finish(n_subpaths)
         self.grid.build(self.store.p, self.radius, self.store.valid)
         self._set_normalizations(vm_normalization, ratio, steps)
         self.pool.begin_pass(self.chain_model)
@@ -276,7 +305,7 @@ class Mbe(Vcm):
         if b[0] > 0:
             self.b_sum += b
             self.passes_with_b += 1
-        self.work_done += steps + self.n_pixels
+        self.work_done += steps + n_subpaths
 
     def _set_normalizations(self, vm_normalization: float, pairing: float, steps: int):
         self._norms[None] = [vm_normalization, pairing, 1.0 / steps]
@@ -292,7 +321,7 @@ class Mbe(Vcm):
                         dvc=acc.m.dvc, dvm=acc.m.dvm)
         if w.length + 1 <= acc.max_depth:
             acc.L += w.beta * self._next_event(cv, wo_l, t1, t2, sc.bsdf_continuation(b), state, c)
-        self.store.append(acc.pixel, cv)
+        self.store.append(acc.subpath, cv)
         return CONTINUE
 
     # -- light side: the chains' model (kernels/mcmc.py) ------------------------------------
@@ -301,8 +330,9 @@ class Mbe(Vcm):
         """Trace the light subpath `key` names against the stored camera subpaths. PROBE:
         its targets (T_V, T_C); DEPOSIT: splat F(u) with weight w[l] recorded at level l."""
         self.visit_mode[vkey] = mode
-        self.pair[vkey] = ti.min(ti.cast(source.get(key, ti.static(self.pair_dim)) * self.n_pixels, ti.i32),
-                                 self.n_pixels - 1)
+        n_subpaths = self.n_subpaths[None]
+        self.pair[vkey] = ti.min(ti.cast(source.get(key, ti.static(self.pair_dim)) * n_subpaths, ti.i32),
+                                 n_subpaths - 1)
         self.probe_sum[vkey] = ti.Vector([0, 0, 0], ti.i64)
         slot = ti.cast(key[0], ti.i32)
         dims = 0
@@ -399,10 +429,10 @@ class Mbe(Vcm):
         # shadow ray are inlined once: each copy of the BVH traversal costs compile time
         # (docs/performance.md, "Compile time"). Same rays, same order as the techniques'
         # own functions (kernels/vcm_techniques.py).
-        pixel = self.pair[vkey]
-        first = store.path_start[pixel]
+        subpath = self.pair[vkey]
+        first = store.path_start[subpath]
         total = vec3(0.0)
-        for k in range(-1, store.path_count[pixel]):
+        for k in range(-1, store.path_count[subpath]):
             target = sc.cam_origin
             px, py = 0, 0
             cv = store.vertex(0)                   # read for k >= 0 only
@@ -444,6 +474,7 @@ class Mbe(Vcm):
                             else:
                                 total += contrib
         if total.max() > 0.0:
+            pixel = subpath % ti.static(self.n_pixels)
             py0 = pixel // sc.width
             self._emit(vkey, py0, pixel - py0 * sc.width, total * norms[1])
             used = 1
@@ -461,7 +492,7 @@ class Mbe(Vcm):
                         t1, t2, wo_l, q = vcm_techniques.camera_frame(sc, cv)
                         contrib = vcm_techniques.merge(sc, cv, wo_l, t1, t2, q, lv, c, norms[0])
                         if contrib.max() > 0.0:
-                            pix = store.path[slot]
+                            pix = store.path[slot] % ti.static(self.n_pixels)
                             y = pix // sc.width
                             self._emit(vkey, y, pix - y * sc.width, contrib)
                             used = 1
@@ -506,6 +537,7 @@ class Mbe(Vcm):
         chain_bytes = self.pool.fields.nbytes + self.chain_fields.nbytes
         return {
             "light_paths_per_iteration": self.n_light, "chain_steps_last_iteration": self.steps_last,
+            "camera_paths_per_pixel": self.camera_paths,
             "chains": self.n_chains,
             "mis": "modified" if self.modified_mis else "plain",
             "radius": self.radius, "initial_radius": self.r1, "alpha": self.alpha,

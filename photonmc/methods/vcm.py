@@ -44,7 +44,7 @@ INITIAL_VERTICES_PER_PATH = 4    # light-vertex storage per light subpath; grows
 MAX_STORE_BYTES = 8 << 30        # refuse (a clear error) rather than fail to allocate
 PI = math.pi
 # One camera subpath's accumulators and the iteration's settings it needs at its vertices.
-CameraSubpath = ti.types.struct(L=vec3, merged=ti.types.vector(3, ti.i64), m=vcm_mis.SubpathMis, pixel=ti.i32,
+CameraSubpath = ti.types.struct(L=vec3, merged=ti.types.vector(3, ti.i64), m=vcm_mis.SubpathMis, subpath=ti.i32,
                                 max_depth=ti.i32, vm_normalization=ti.f32)
 
 
@@ -172,7 +172,8 @@ class Vcm(Method):
             if self.grid is not None:
                 self.grid.build(self.store.p, self.radius, self.store.valid)
         self._camera_pass(self.store if self.store is not None else self.fields, self.grid if self.grid is not None
-                          else self.fields, self.seed_u32, it, self.max_depth, 1.0 / (PI * self.radius ** 2 * self.n_light))
+                          else self.fields, self.seed_u32, it, self.max_depth, 1.0 / (PI * self.radius ** 2 * self.n_light),
+                          1)
         self.film.flush()
         self.work_done += self.n_light + self.n_pixels
 
@@ -220,18 +221,23 @@ class Vcm(Method):
     # -- camera side ---------------------------------------------------------------------
     @ti.kernel
     def _camera_pass(self, store: ti.template(), grid: ti.template(), seed: ti.u32, iteration: ti.u32,
-                     max_depth: ti.i32, vm_normalization: ti.f32):
+                     max_depth: ti.i32, vm_normalization: ti.f32, per_pixel: ti.i32):
+        """per_pixel camera subpaths per pixel (vcm: 1; mbe: --camera-paths). Subpath
+        k * pixels + pixel draws its own random numbers (k = 0: the pixel's, as with one) and
+        adds 1/per_pixel of its estimate to the pixel; `acc.subpath` names the subpath."""
         sc = self.dscene
-        for y, x in ti.ndrange(sc.height, sc.width):
+        inv_per_pixel = 1.0 / ti.cast(per_pixel, ti.f32)
+        for k, y, x in ti.ndrange(per_pixel, sc.height, sc.width):
             pixel = y * sc.width + x
-            state = rng.seed(seed, ti.u32(pixel), iteration * ti.u32(2))
+            subpath = k * ti.static(self.n_pixels) + pixel
+            state = rng.seed(seed, ti.u32(subpath), iteration * ti.u32(2))
             o, d = sc.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
             acc = CameraSubpath(L=vec3(0.0), merged=ti.Vector([0, 0, 0], ti.i64),
-                                m=vcm_mis.camera_start(sc.camera_pdf_w(d), self.mis_constants()), pixel=pixel,
+                                m=vcm_mis.camera_start(sc.camera_pdf_w(d), self.mis_constants()), subpath=subpath,
                                 max_depth=max_depth, vm_normalization=vm_normalization)
             # Light tracing renders all but the emitters seen directly.
             camera_walk(sc, o, d, state, 1 if ti.static(self.lt_only) else max_depth, self, acc)
-            self.film.add_fixed(y, x, self.film.fixed(acc.L) + acc.merged)
+            self.film.add_fixed(y, x, self.film.fixed(acc.L * inv_per_pixel) + acc.merged)
 
     # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
     roulette = MATERIAL_ROULETTE
@@ -252,7 +258,7 @@ class Vcm(Method):
         cv = PathVertex(p=s.p, ng=s.ng, n=n, wo=wo, beta=w.beta, length=w.length, bsdf=b, dvcm=acc.m.dvcm,
                         dvc=acc.m.dvc, dvm=acc.m.dvm)
         if ti.static(self.use_vc):
-            nee, connected = self._nee_and_connections(self.store, acc.pixel, cv, wo_l, t1, t2, q, state, c,
+            nee, connected = self._nee_and_connections(self.store, acc.subpath, cv, wo_l, t1, t2, q, state, c,
                                                        acc.max_depth)
             acc.L += w.beta * nee
             acc.L += w.beta * connected
