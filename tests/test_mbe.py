@@ -41,6 +41,18 @@ def test_sphere_furnace_analytic(write_scene, mis):
     assert contribution["mutations"] > 0 and contribution["starts_resampled"] > 0
 
 
+def test_warm_started_contribution_chains_keep_the_furnace(write_scene):
+    """warm_start (an API option, measured in docs/mbe.md): the contribution chain starts each
+    pass from its last state where that still contributes, instead of a resampled bootstrap;
+    on the furnace it still reaches the analytic radiance and resamples only in the first pass."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    r = render(scene, 32, seed=6, max_depth=3, warm_start=True)
+    lum = luminance(r.image)
+    expected = furnace_expectation(3)
+    assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected, lum.mean()
+    assert r.stats["levels"][1]["starts_resampled"] == r.stats["chains"]     # the first pass only
+
+
 def test_several_camera_subpaths_per_pixel_keep_the_furnace(write_scene):
     """--camera-paths 3: each pixel's estimate is the mean of three camera subpaths, merging
     and the camera-only techniques count three times the samples in the MIS weights, and the

@@ -172,8 +172,12 @@ class ChainPool:
                  expected_values: bool = False, burn_in: float = 0.0, binary_base: bool = True,
                  seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8, large_step: float = 0.0,
                  suffix_mutation: float = 0.0, suffix_starts: tuple = (), block_starts: tuple = (),
-                 base_records_in_burn_in: bool = False):
+                 base_records_in_burn_in: bool = False, warm_start: bool = False):
         self.n_chains, self.n_levels, self.dims = n_chains, n_levels, dims
+        # Upper levels whose last state still has a non-zero target after begin_pass's
+        # re-evaluation start from it (then burn in) instead of a resampled bootstrap: an
+        # experiment on the start-up bias of short passes (docs/mbe.md, "Start-up").
+        self.warm_start = bool(warm_start)
         if not 0.0 <= burn_in < 1.0:
             raise ValueError(f"burn_in is a fraction of each pass in [0, 1), got {burn_in}")
         if seeding not in SEEDINGS:
@@ -290,6 +294,8 @@ class ChainPool:
                     ((self.block_counters,) if self.n_blocks > 1 else ()))
         with _chain_kernel_compilation():
             self._run(model, 0, 0, 0, 0.0, 0.5, PROBE)
+        if self.warm_start:
+            self._warm_start()
 
     def run(self, model, seed: int, iteration: int, steps: int):
         """`steps` chain steps in all, spread over the ladders, then deposit every pending weight.
@@ -382,6 +388,18 @@ class ChainPool:
                             self.seeding_phase[c] = 1 if i < seeding_steps else 0
                         self.recording[c] = 1 if i >= burn else 0
                     self._step(model, c, state, task)
+
+    @ti.kernel
+    def _warm_start(self):
+        """Each upper level whose stored state still has a non-zero target under the new one
+        starts from it: fresh, its reservoir spent."""
+        for c in range(self.n_chains):
+            for level in ti.static(range(1, self.n_levels)):
+                s = self.level_slot[c, level]
+                t = self.T[s]
+                if t[level] > 0.0:
+                    self.fresh[s] = 1
+                    self.reservoir_hits[c, level] = -1 << 30
 
     # -- one step of one ladder ------------------------------------------------------------
     @ti.func

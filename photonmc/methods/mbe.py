@@ -135,7 +135,7 @@ class Mbe(Vcm):
     independent_iterations = False      # the chains carry their states and mutation sizes on
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
-               "base_in_burn_in": True, "camera_paths": None}
+               "base_in_burn_in": True, "camera_paths": None, "warm_start": False}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
@@ -165,7 +165,8 @@ class Mbe(Vcm):
         self.pool = ChainPool(self.n_chains, self.n_levels, self.pair_dim + 1, seeding="resample",
                               bootstrap=BOOTSTRAP_FRACTION, bootstrap_hits=BOOTSTRAP_HITS,
                               burn_in=LADDER_BURN_IN, large_step=self.large_step,
-                              base_records_in_burn_in=bool(opts["base_in_burn_in"]))
+                              base_records_in_burn_in=bool(opts["base_in_burn_in"]),
+                              warm_start=bool(opts["warm_start"]))
         w, h, c = dscene.width, dscene.height, self.n_chains
         f = FieldGroup("mbe-chains")
         self.visit_mode = f.scalar(ti.i32, c)
