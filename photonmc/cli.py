@@ -97,7 +97,8 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
                     "measured as it renders (docs/effort.md)")
     pm.add_argument("--camera-paths", type=_camera_paths,
                     help="camera paths per pixel per pass, or auto: as many as the photon pass is worth, "
-                         "from the same balance (default: 1 for sppm, auto for visibility and spatial-tf)")
+                         "from the same balance (default: 1 for sppm, auto for visibility and spatial-tf; "
+                         "mbe: a number, default 1, camera subpaths its chains meet, docs/mbe.md)")
     pm.add_argument("--alpha", type=float, help="fraction of new photons kept by the radius update (default 2/3)")
     pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
                                                  "(default: 2 pixel footprints at each pixel's first hit)")
@@ -115,7 +116,7 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
 
 def _add_guiding_options(parser):
     g = parser.add_argument_group("Markov chains (visibility, spatial-tf; mbe takes --chains and --target-acceptance)")
-    g.add_argument("--chains", type=int, help="parallel Markov-chain ladders (default 4; mbe 16)")
+    g.add_argument("--chains", type=int, help="parallel Markov-chain ladders (default 4)")
     g.add_argument("--target-acceptance", type=float,
                    help="acceptance rate the mutation size adapts to (default 0.234)")
     g.add_argument("--proposal-failures", choices=["keep", "drop"],
@@ -146,6 +147,9 @@ def _add_vcm_options(parser):
     g.add_argument("--large-step", type=float,
                    help="mbe: probability that a chain step is a uniform proposal (default 0.3; 0: every "
                         "chain moves every step)")
+    g.add_argument("--warm-start", action="store_true", default=None,
+                   help="mbe: a contribution chain starts each pass from its last state where that still "
+                        "contributes, instead of a resampled bootstrap (measured, not the default; docs/mbe.md)")
 
 
 def _method_options(args) -> dict:
@@ -154,7 +158,7 @@ def _method_options(args) -> dict:
             "expected_values": args.expected_values, "path_target": args.path_target,
             "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis,
             "large_step": args.large_step, "suffix_mutation": args.suffix_mutation,
-            "mutation": args.mutation}
+            "mutation": args.mutation, "warm_start": args.warm_start}
 
 
 def _seed_list(text: str) -> list[int]:

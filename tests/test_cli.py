@@ -83,6 +83,9 @@ BAD = {
     "vcm unknown technique": (["render", *SMALL, "--method", "vcm", "--techniques", "pm"], "unknown --techniques"),
     "light paths for sppm": (["render", *SMALL, "--method", "sppm", "--light-paths", "9"],
                              "does not take --light-paths"),
+    "warm start for vcm": (["render", *SMALL, "--method", "vcm", "--warm-start"], "does not take --warm-start"),
+    "mbe camera paths auto": (["render", *SMALL, "--method", "mbe", "--camera-paths", "auto"],
+                              "--camera-paths for mbe must be a number"),
 }
 
 
