@@ -3,8 +3,9 @@
 VCM whose light subpaths come from Markov chains in primary sample space, evaluated against
 the iteration's stored camera subpaths. Each iteration:
 1. camera pass: one stratified subpath per pixel (K with --camera-paths; vcm's camera walk)
-   adds the camera-only techniques straight to the frame (emitter hits, next-event estimation) and stores every
-   non-delta vertex, with its MIS partial sums, by pixel and in a hash grid of radius r_i;
+   adds the camera-only techniques straight to the frame (emitter hits, next-event
+   estimation) and stores every non-delta vertex, with its MIS partial sums, by pixel and in
+   a hash grid of radius r_i;
 2. chain pass: `--light-paths` steps of the chain ladders (kernels/mcmc.py). A state u is one
    light subpath plus one coordinate that picks the camera subpath it connects to; evaluating
    it traces the light subpath and, at each non-delta light vertex, traces it to the camera,
