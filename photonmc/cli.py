@@ -98,7 +98,7 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
     pm.add_argument("--camera-paths", type=_camera_paths,
                     help="camera paths per pixel per pass, or auto: as many as the photon pass is worth, "
                          "from the same balance (default: 1 for sppm, auto for visibility and spatial-tf; "
-                         "mbe: a number, default 1, camera subpaths its chains meet, docs/mbe.md)")
+                         "mbe: default auto, the camera subpaths per pixel its chains meet, docs/mbe.md)")
     pm.add_argument("--alpha", type=float, help="fraction of new photons kept by the radius update (default 2/3)")
     pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
                                                  "(default: 2 pixel footprints at each pixel's first hit)")
@@ -147,9 +147,10 @@ def _add_vcm_options(parser):
     g.add_argument("--large-step", type=float,
                    help="mbe: probability that a chain step is a uniform proposal (default 0.3; 0: every "
                         "chain moves every step)")
-    g.add_argument("--warm-start", action="store_true", default=None,
+    g.add_argument("--warm-start", action=argparse.BooleanOptionalAction, default=None,
                    help="mbe: a contribution chain starts each pass from its last state where that still "
-                        "contributes, instead of a resampled bootstrap (measured, not the default; docs/mbe.md)")
+                        "contributes (default); --no-warm-start: from a bootstrap resampled in the pass "
+                        "(docs/mbe.md)")
 
 
 def _method_options(args) -> dict:

@@ -13,6 +13,7 @@ the seeds with the single-render noise removed (`metrics.relmse_spread_over_seed
 from __future__ import annotations
 
 import csv
+import json
 import math
 import time
 from dataclasses import dataclass
@@ -215,6 +216,8 @@ def converge(scene, scene_label: str, methods: list[str], reference_path, budget
             suffix = "" if len(seeds) == 1 else f"-seed{seed}"
             imageio.write_image(out_dir / f"{name}{suffix}.exr", image, {"method": name, "seed": seed,
                                                                          "iterations": stats["iterations"]})
+            # the run's statistics (what --stats writes): e.g. what an automatic setting chose
+            (out_dir / f"{name}{suffix}.json").write_text(json.dumps(stats, indent=1, default=str))
         by_method[name] = runs
         spread[name] = metrics.relmse_spread_over_seeds(images, reference, eps)
     write_csv(out_dir / "convergence.csv", all_points)

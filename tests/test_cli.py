@@ -111,13 +111,14 @@ def test_same_seed_same_image_for_any_thread_count(tmp_path, method):
     """spatial-tf: its ladders run in parallel (kernels/mcmc.py), two per thread with 2.
     vcm: light vertices are appended in thread order, then put in path order; light tracing
     and merging add in fixed point (film.SplatFilm). mbe: both, with the camera vertices
-    stored and the chains' targets summed in fixed point."""
+    stored and the chains' targets summed in fixed point; its default --camera-paths auto
+    sums over pixels in one fixed order, so K is the same too."""
     # Both renders at once: each process compiles every kernel for its thread count, and
     # compilation is mostly one thread, so on 2 cores this halves the test's time.
     runs = {}
     for threads in ("1", "2"):
         out = tmp_path / f"t{threads}.exr"
-        runs[out] = subprocess.Popen([sys.executable, "-m", "photonmc", "render", *SMALL, "--method", method,
+        runs[out] = subprocess.Popen([sys.executable, "-m", "photonmc", "render", *SMALL, "--method", *method.split(),
                                       "--iterations", "4", "--seed", "9", "--threads", threads, "--quiet",
                                       "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     images = []

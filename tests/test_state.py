@@ -68,6 +68,20 @@ def test_resume_of_balanced_sppm_equals_straight(tmp_path):
     p.release()
 
 
+def test_resume_of_mbe_with_camera_paths_auto_equals_straight(tmp_path):
+    """mbe --camera-paths auto: the balance's history and the last estimate it compares with
+    are part of the state, so the resumed render picks the same K and gives the same image."""
+    j = Job(scene=CORNELL, params=SMALL, method="mbe", seed=3, options={"light_paths": 256, "camera_paths": "auto"})
+    straight = rendered(j, 10)
+    [half] = state.load(state.save(tmp_path / "auto.state", [rendered(j, 5)]))
+    p, _ = resume(half)
+    for _ in range(5):
+        p.method.iterate()
+    assert np.array_equal(p.method.image(), straight.image)
+    assert p.method.camera_paths == straight.plain["camera_paths"]
+    p.release()
+
+
 def test_a_state_that_misses_part_of_the_method_does_not_resume_straight(monkeypatch, tmp_path):
     """The check above can fail: leave the chain pool out of visibility's state and the
     resumed image differs."""

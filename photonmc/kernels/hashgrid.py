@@ -148,30 +148,37 @@ class PointGrid(HashGrid):
         super().release()
         self.pos_fields.release()
 
-    def build(self, pos, radius: float, valid):
-        self._setup(radius)
-        self._count_points(pos, valid)
-        self._prefix_sum(self.table_size)
-        self._fill_points(pos, valid)
+    def build(self, pos, radius: float, valid, count: int | None = None):
+        """Only the first `count` points (default: all) are read, and the table uses the
+        smallest power of two >= 2 count of its slots (as HashGrid.build): mbe's store is
+        sized for the most camera subpaths per pixel its effort balance may choose."""
+        count = self.n_points if count is None else int(count)
+        slots = 1
+        while slots < 2 * count and slots < self.table_size:
+            slots *= 2
+        self._setup(radius, slots)
+        self._count_points(pos, valid, count)
+        self._prefix_sum(slots)
+        self._fill_points(pos, valid, count)
 
     @ti.kernel
-    def _setup(self, radius: ti.f32):
+    def _setup(self, radius: ti.f32, slots: ti.i32):
         self.max_radius[None] = radius
         self.cell_size[None] = ti.max(2.0 * radius, 1e-30)
-        self.slot_mask[None] = self.table_size - 1
-        for h in range(self.table_size):
+        self.slot_mask[None] = slots - 1
+        for h in range(slots):
             self.cell_count[h] = 0
             self.cell_fill[h] = 0
 
     @ti.kernel
-    def _count_points(self, pos: ti.template(), valid: ti.template()):
-        for i in range(self.n_points):
+    def _count_points(self, pos: ti.template(), valid: ti.template(), count: ti.i32):
+        for i in range(count):
             if valid[i]:
                 ti.atomic_add(self.cell_count[self.slot(self.cell_of(pos[i]))], 1)
 
     @ti.kernel
-    def _fill_points(self, pos: ti.template(), valid: ti.template()):
-        for i in range(self.n_points):
+    def _fill_points(self, pos: ti.template(), valid: ti.template(), count: ti.i32):
+        for i in range(count):
             if valid[i]:
                 h = self.slot(self.cell_of(pos[i]))
                 at = ti.atomic_add(self.cell_fill[h], 1)

@@ -318,10 +318,10 @@ class ChainPool:
         c, rec, ratio, uniform_T, *blocks = download_fields(
             (self.counters, self.recorded, self.ratio, self.uniform_T) +
             ((self.block_counters,) if self.n_blocks > 1 else ()))
-        rec = rec.sum(axis=0)
+        rec_per_chain, rec = rec, rec.sum(axis=0)
         ratio = ratio.sum(axis=0)
         n_uniform = max(int(c[0, UNIFORM]), 1)
-        out = {"counters": c, "recorded": rec,
+        out = {"counters": c, "recorded": rec, "recorded_per_chain": rec_per_chain,
                "mean_ratio": np.divide(ratio, rec, out=np.zeros_like(ratio), where=rec > 0),
                "uniform_mean": uniform_T.sum(axis=0) / n_uniform}
         if self.n_blocks > 1:

@@ -62,6 +62,7 @@ from ..kernels.photon import dimensions, photon_segments, trace_photon
 from ..kernels.sampling import luminance, vec3
 from ..kernels.subpath_store import BYTES_PER_STORED_VERTEX
 from ..kernels.vcm_mis import PathVertex
+from .effort import EffortBalance
 from .guided import LADDER_BURN_IN
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 
@@ -125,6 +126,12 @@ BOOTSTRAP_FRACTION = 0.25
 # camera-side error (emitter hits, next-event estimation) to few samples.
 MAX_CAMERA_PATHS = 64
 CAMERA_SUBPATH_BUDGET = 1 << 20
+# --camera-paths auto: the effort balance (methods/effort.py) picks K per pass from the
+# camera-side and light-side variances it measures, within fields sized for the most it may
+# pick (allocated once, so that a rising K never recompiles the chain kernel mid-render):
+# 16 at up to 128x128, 8 at 256x256 (the store then holds 2^21 vertices, 0.26 GB).
+MAX_AUTO_CAMERA_PATHS = 16
+AUTO_SUBPATH_BUDGET = 1 << 19
 SPLAT_LIST_CAPACITY = 1024   # entries kept per splat list (16 bytes each); longer lists are traced again
 
 
@@ -136,15 +143,19 @@ class Mbe(Vcm):
     independent_iterations = False      # the chains carry their states and mutation sizes on
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
-               "base_in_burn_in": True, "camera_paths": None, "warm_start": False}
+               "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
 
     def __init__(self, dscene, settings):
         # The camera subpaths per pixel size the vertex store, which Vcm.__init__ allocates.
-        self.camera_paths = self._camera_paths_option(settings.options.get("camera_paths"),
-                                                      dscene.width * dscene.height)
+        # auto (the default) needs two ladders or more; with one, K stays 1 unless asked for.
+        camera_paths = settings.options.get("camera_paths")
+        if camera_paths is None and settings.options.get("chains") == 1:
+            camera_paths = 1
+        self.camera_paths, self.camera_paths_auto, self.max_camera_paths = self._camera_paths_option(
+            camera_paths, dscene.width * dscene.height)
         super().__init__(dscene, settings)
         opts = self.options
         if opts["mis"] not in ("modified", "plain"):
@@ -153,6 +164,9 @@ class Mbe(Vcm):
         self.n_chains = int(opts["chains"] if opts["chains"] is not None else DEFAULT_CHAINS)
         if not 1 <= self.n_chains <= MAX_CHAINS:
             raise SettingsError(f"--chains must be between 1 and {MAX_CHAINS}, got {self.n_chains}")
+        if self.camera_paths_auto and self.n_chains < 2:
+            raise SettingsError("--camera-paths auto needs --chains 2 or more: the balance measures the light "
+                                "side's variance from two independent halves of the ladders (docs/mbe.md)")
         if self.n_light < self.n_chains:
             raise SettingsError(f"--light-paths ({self.n_light}) must be at least --chains ({self.n_chains}): "
                                 f"every chain takes steps")
@@ -175,10 +189,16 @@ class Mbe(Vcm):
         self.n_subpaths = f.scalar(ti.i32, ())           # camera subpaths this iteration (K x pixels)
         self.probe_sum = f.vector(3, ti.i64, c)          # F(u) in fixed point (order-independent)
         self.deposit_weight = f.vector(self.n_levels, ti.f32, c)
-        self.light_frame = f.vector(3, ti.i64, (self.n_levels, h, w))
+        # Per level and ladder parity (index 2 level + ladder % 2): the even and odd ladders'
+        # halves of the light side, which the effort balance compares (methods/effort.py).
+        self.light_frame = f.vector(3, ti.i64, (2 * self.n_levels, h, w))
+        self.last_estimate = f.scalar(ti.f64, w * h)     # last iteration's luminance per pixel (effort)
+        self.effort_sums = f.scalar(ti.f64, 2)          # its spread, the halves' squared difference
         self.b_mis = f.scalar(ti.f32, self.n_levels)     # previous pass's normalisations (MIS only)
         self.pre_scale = f.scalar(ti.f32, self.n_levels)  # previous pass's level scales (see deposit)
-        self.light_counters = f.scalar(ti.i64, 2)        # light subpaths traced, their segments
+        # light subpaths traced, their segments, their shadow rays, the camera vertices they
+        # tried to merge with (the work the effort balance counts)
+        self.light_counters = f.scalar(ti.i64, 4)
         self._norms = f.vector(3, ti.f32, ())            # merging, pairing, light-tracing normalisations
         # Splat lists: one per chain slot (the state's) and one per ladder (its last probe,
         # `adopt`ed by the slot that accepts it), so that a state deposits without being traced
@@ -193,19 +213,23 @@ class Mbe(Vcm):
         self._reset_chains()
 
     @staticmethod
-    def _camera_paths_option(value, n_pixels: int) -> int:
-        """--camera-paths K: camera subpaths per pixel per iteration, at most MAX_CAMERA_PATHS
-        and CAMERA_SUBPATH_BUDGET subpaths in all."""
-        k = 1 if value is None else value
+    def _camera_paths_option(value, n_pixels: int) -> tuple[int, bool, int]:
+        """--camera-paths K (camera subpaths per pixel per iteration, at most MAX_CAMERA_PATHS
+        and CAMERA_SUBPATH_BUDGET subpaths in all) or auto, the default: (K to start with,
+        auto, most)."""
+        k = "auto" if value is None else value
+        if k == "auto":
+            return 1, True, max(1, min(MAX_AUTO_CAMERA_PATHS, AUTO_SUBPATH_BUDGET // n_pixels))
         most = max(1, min(MAX_CAMERA_PATHS, CAMERA_SUBPATH_BUDGET // n_pixels))
         if not isinstance(k, (int, np.integer)) or isinstance(k, bool) or not 1 <= k <= most:
-            raise SettingsError(f"--camera-paths for mbe must be a number from 1 to {most} at this resolution "
-                                f"(at most {CAMERA_SUBPATH_BUDGET} camera subpaths per iteration), got '{value}'")
-        return int(k)
+            raise SettingsError(f"--camera-paths for mbe must be 'auto' or a number from 1 to {most} at this "
+                                f"resolution (at most {CAMERA_SUBPATH_BUDGET} camera subpaths per iteration), "
+                                f"got '{value}'")
+        return int(k), False, int(k)
 
     def _stored_paths(self) -> int:
-        """mbe stores the camera subpaths' vertices, --camera-paths subpaths per pixel."""
-        return self.n_pixels * self.camera_paths
+        """mbe stores the camera subpaths' vertices: as many subpaths per pixel as it may trace."""
+        return self.n_pixels * self.max_camera_paths
 
     def _allocate_store(self, capacity: int):
         super()._allocate_store(capacity)
@@ -227,7 +251,11 @@ class Mbe(Vcm):
 
     def _reset_chains(self):
         fill_fields([(self.b_mis, 1.0), (self.pre_scale, 1.0), (self.light_counters, 0), (self.light_frame, 0),
-                     (self.list_stats, 0)])
+                     (self.list_stats, 0), (self.last_estimate, 0.0)])
+        if self.camera_paths_auto:
+            self.camera_paths = 1
+        self.effort = EffortBalance(self.n_pixels, self.n_light, self.alpha)   # steers K with auto; stats
+        self.light_work_last = np.zeros(3)      # light_counters[1:] after the last pass
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
         self.pre_scale_host = np.ones(self.n_levels, np.float32)   # pre_scale's value, read without a kernel
         self.steps_last = self.n_light
@@ -285,7 +313,7 @@ class Mbe(Vcm):
         self.vertices_last = n
         self.vertices_sum += n
         self.store.finish(n_subpaths)
-        self.grid.build(self.store.p, self.radius, self.store.valid)
+        self.grid.build(self.store.p, self.radius, self.store.valid, n)
         self._set_normalizations(vm_normalization, ratio, steps)
         self.pool.begin_pass(self.chain_model)
         self.pool.run(self.chain_model, self.seed_u32, it, steps)
@@ -293,6 +321,7 @@ class Mbe(Vcm):
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * steps / np.maximum(recorded, 1e-300), 0.0)
+        self._observe_effort(steps, k, n, b, tallies["recorded_per_chain"], scale)
         self._add_light_frames(*(scale / self.pre_scale_host.astype(np.float64)))
         self.film.flush()
         uploads = []
@@ -308,6 +337,62 @@ class Mbe(Vcm):
             self.b_sum += b
             self.passes_with_b += 1
         self.work_done += steps + n_subpaths
+
+    def _observe_effort(self, steps: int, k: int, vertices: int, b, recorded_per_chain, scale):
+        """The effort balance's view of this iteration (methods/effort.py), and with
+        --camera-paths auto the next pass's K. The light side's variance comes from the even
+        and odd ladders (independent; each half's estimate scaled by its own recorded weight),
+        the camera side's from consecutive iterations; work is counted: camera rays (one per
+        subpath, an extension and a shadow ray per stored vertex) and one grid entry per
+        vertex, against light segments and shadow rays per chain step, with the merge
+        candidates, which grow with K at a fixed pass length, as camera work."""
+        unit = self.film.unit / self.pre_scale_host.astype(np.float64)
+        full = scale * unit
+        halves = []
+        for parity in (0, 1):
+            w = recorded_per_chain[parity::2].sum(axis=0)
+            halves.append(np.where(w > 0, b * steps / np.maximum(w, 1e-300), 0.0) * unit)
+        self._effort_sums(*full, *halves[0], *halves[1])
+        sums, counters = download_fields((self.effort_sums, self.light_counters))
+        light_work = counters[1:].astype(np.float64)
+        segments, rays, merges = light_work - self.light_work_last
+        self.light_work_last = light_work
+        n_even, n_odd = (self.n_chains + 1) // 2, self.n_chains // 2
+        # Var(t_even - t_odd) = (V_p / n) (c / n_even + c / n_odd) for c ladders in all; with
+        # one ladder there are no halves, and the balance has nothing to go by (stats only).
+        v_p_times_n = 0.0 if n_odd == 0 else \
+            steps * sums[1] / self.n_pixels / (self.n_chains / n_even + self.n_chains / n_odd)
+        n_subpaths = k * self.n_pixels
+        self.effort.observe(steps, sums[0] / self.n_pixels, v_p_times_n, self.radius ** 2,
+                            n_subpaths + 3.0 * vertices, segments + rays, camera_paths=k, deposits=merges)
+        if self.camera_paths_auto:
+            self.camera_paths = self.effort.next_camera_paths(steps, self.max_camera_paths)
+
+    @ti.kernel
+    def _effort_sums(self, full0: ti.f64, full1: ti.f64, even0: ti.f64, even1: ti.f64, odd0: ti.f64,
+                     odd1: ti.f64):
+        """Before the light frames join the frame: the sum over pixels of (this iteration's
+        estimate - the last one's)^2 and of (t_even - t_odd)^2, in luminance, in one fixed
+        order (a serial loop) so that K, and so the image, does not depend on thread timing."""
+        w = ti.static(self.dscene.width)
+        y_weights = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
+        spread, halves = ti.f64(0.0), ti.f64(0.0)
+        ti.loop_config(serialize=True)
+        for i in range(self.n_pixels):
+            y, x = i // w, i % w
+            f0e = ti.cast(self.light_frame[0, y, x], ti.f64)
+            f0o = ti.cast(self.light_frame[1, y, x], ti.f64)
+            f1e = ti.cast(self.light_frame[2, y, x], ti.f64)
+            f1o = ti.cast(self.light_frame[3, y, x], ti.f64)
+            e = (ti.cast(self.film.frame[y, x], ti.f64) * ti.static(self.film.unit) + (f0e + f0o) * full0
+                 + (f1e + f1o) * full1).dot(y_weights)
+            d = e - self.last_estimate[i]
+            spread += d * d
+            self.last_estimate[i] = e
+            h = (f0e * even0 + f1e * even1 - f0o * odd0 - f1o * odd1).dot(y_weights)
+            halves += h * h
+        self.effort_sums[0] = spread
+        self.effort_sums[1] = halves
 
     def _set_normalizations(self, vm_normalization: float, pairing: float, steps: int):
         self._norms[None] = [vm_normalization, pairing, 1.0 / steps]
@@ -412,11 +497,12 @@ class Mbe(Vcm):
     @ti.func
     def _deposit_entry(self, vkey, y: ti.i32, x: ti.i32, contrib):
         dw = self.deposit_weight[vkey]
+        parity = vkey % 2
         for level in ti.static(range(self.n_levels)):
             if dw[level] > 0.0:
                 v = self.film.fixed(contrib * dw[level])
                 for k in ti.static(range(3)):
-                    ti.atomic_add(self.light_frame[level, y, x][k], v[k])
+                    ti.atomic_add(self.light_frame[2 * level + parity, y, x][k], v[k])
 
     @ti.func
     def visit_light_vertex(self, store: ti.template(), grid: ti.template(), vkey: ti.i32, lv) -> ti.i32:
@@ -426,6 +512,7 @@ class Mbe(Vcm):
         c = self.mis_constants()
         norms = self._norms[None]
         used = 0
+        rays, candidates = 0, 0          # work, counted for the effort balance
         # Light tracing (k = -1: the camera) and the connections to every vertex of the
         # paired camera subpath (k >= 0) in one loop, so that the light side's BSDF and the
         # shadow ray are inlined once: each copy of the BVH traversal costs compile time
@@ -469,6 +556,7 @@ class Mbe(Vcm):
                         a, na, b, nb = cv.p, cv.ng, lv.p, lv.ng
                         if k < 0:
                             a, na, b, nb = lv.p, lv.ng, sc.cam_origin, w
+                        rays += 1
                         if sc.visible(a, na, b, nb):
                             if k < 0:
                                 self._emit(vkey, py, px, contrib)
@@ -490,6 +578,7 @@ class Mbe(Vcm):
                     slot = grid.entries[e]
                     if store.length[slot] + lv.length <= ti.static(self.max_depth) and \
                             vcm_techniques.can_merge(store.n[slot], lv.n, lv.wo):
+                        candidates += 1
                         cv = store.vertex(slot)
                         t1, t2, wo_l, q = vcm_techniques.camera_frame(sc, cv)
                         contrib = vcm_techniques.merge(sc, cv, wo_l, t1, t2, q, lv, c, norms[0])
@@ -498,17 +587,21 @@ class Mbe(Vcm):
                             y = pix // sc.width
                             self._emit(vkey, y, pix - y * sc.width, contrib)
                             used = 1
+        ti.atomic_add(self.light_counters[2], rays)
+        ti.atomic_add(self.light_counters[3], candidates)
         return used
 
     @ti.kernel
     def _add_light_frames(self, s0: ti.f64, s1: ti.f64):
         """End of the pass: the chains' splats, at their levels' final scales, join the frame."""
         for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
-            total = ti.cast(self.light_frame[0, y, x], ti.f64) * s0 + ti.cast(self.light_frame[1, y, x], ti.f64) * s1
+            # each level's two halves summed exactly (fixed point) before the scale
+            total = ti.cast(self.light_frame[0, y, x] + self.light_frame[1, y, x], ti.f64) * s0 \
+                + ti.cast(self.light_frame[2, y, x] + self.light_frame[3, y, x], ti.f64) * s1
             for k in ti.static(range(3)):
                 ti.atomic_add(self.film.frame[y, x][k], ti.cast(total[k] + 0.5, ti.i64))
-            for level in ti.static(range(2)):
-                self.light_frame[level, y, x] = ti.Vector([0, 0, 0], ti.i64)
+            for frame in ti.static(range(4)):
+                self.light_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
 
     # -- results ----------------------------------------------------------------------
     def progress_fields(self) -> str:
@@ -516,7 +609,7 @@ class Mbe(Vcm):
         acc = t[:, ACCEPTED] / np.maximum(t[:, MUTATIONS], 1)
         swap = t[0, SWAPS_ACCEPTED] / max(int(t[0, SWAPS_TRIED]), 1)
         return (f"radius {self.radius:.3g}  b_V {self.b_last[0]:.2g}  acc {acc[0]:.2f}/{acc[1]:.2f}  "
-                f"swap {swap:.2f}")
+                f"swap {swap:.2f}" + (f"  K {self.camera_paths}" if self.camera_paths_auto else ""))
 
     def method_stats(self):
         t = self.totals
@@ -540,6 +633,8 @@ class Mbe(Vcm):
         return {
             "light_paths_per_iteration": self.n_light, "chain_steps_last_iteration": self.steps_last,
             "camera_paths_per_pixel": self.camera_paths,
+            "camera_paths_per_pixel_auto": self.camera_paths_auto,
+            "effort": self.effort.stats(),
             "chains": self.n_chains,
             "mis": "modified" if self.modified_mis else "plain",
             "radius": self.radius, "initial_radius": self.r1, "alpha": self.alpha,

@@ -170,7 +170,7 @@ class Vcm(Method):
             self.vertices_last = int(self.store.count[None])
             self.store.finish(self.n_light)
             if self.grid is not None:
-                self.grid.build(self.store.p, self.radius, self.store.valid)
+                self.grid.build(self.store.p, self.radius, self.store.valid, self.vertices_last)
         self._camera_pass(self.store if self.store is not None else self.fields, self.grid if self.grid is not None
                           else self.fields, self.seed_u32, it, self.max_depth, 1.0 / (PI * self.radius ** 2 * self.n_light),
                           1)
