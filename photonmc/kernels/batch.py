@@ -24,7 +24,12 @@ def _components(field) -> int:
 
 
 def _size(field) -> int:
-    return int(np.prod(field.shape, dtype=np.int64)) * _components(field)
+    """Scalars in the field, kept on the field object: Taichi's field.shape walks the SNode
+    tree in Python, and the per-pass batches ask for it a few dozen times per iteration."""
+    size = field.__dict__.get("_photonmc_size")
+    if size is None:
+        size = field._photonmc_size = int(np.prod(field.shape, dtype=np.int64)) * _components(field)
+    return size
 
 
 @ti.func
@@ -144,8 +149,11 @@ def upload_fields(pairs) -> None:
 
 
 def numpy_shape(field) -> tuple:
-    """The shape field.to_numpy() returns, without compiling its kernel."""
-    return tuple(field.shape) + ((field.n,) if isinstance(field, ti.MatrixField) else ())
+    """The shape field.to_numpy() returns, without compiling its kernel (kept, as _size)."""
+    shape = field.__dict__.get("_photonmc_shape")
+    if shape is None:
+        shape = field._photonmc_shape = tuple(field.shape) + ((field.n,) if isinstance(field, ti.MatrixField) else ())
+    return shape
 
 
 def download_fields(fields) -> list:

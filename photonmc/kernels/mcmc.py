@@ -313,17 +313,20 @@ class ChainPool:
             self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, STEPS)
             self._run(model, seed, iteration, 0, 0.0, 0.5, DEPOSIT)
 
-    def tallies(self) -> dict:
-        """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l]."""
-        c, rec, ratio, uniform_T, *blocks = download_fields(
-            (self.counters, self.recorded, self.ratio, self.uniform_T) +
+    def tallies(self, extra=()) -> dict:
+        """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l];
+        `extra` fields of the caller's are read in the same batch (out["extra"])."""
+        extra = tuple(extra)
+        c, rec, ratio, uniform_T, *rest = download_fields(
+            (self.counters, self.recorded, self.ratio, self.uniform_T) + extra +
             ((self.block_counters,) if self.n_blocks > 1 else ()))
+        more, blocks = rest[:len(extra)], rest[len(extra):]
         rec_per_chain, rec = rec, rec.sum(axis=0)
         ratio = ratio.sum(axis=0)
         n_uniform = max(int(c[0, UNIFORM]), 1)
         out = {"counters": c, "recorded": rec, "recorded_per_chain": rec_per_chain,
                "mean_ratio": np.divide(ratio, rec, out=np.zeros_like(ratio), where=rec > 0),
-               "uniform_mean": uniform_T.sum(axis=0) / n_uniform}
+               "uniform_mean": uniform_T.sum(axis=0) / n_uniform, "extra": more}
         if self.n_blocks > 1:
             out["block_counters"] = blocks[0]
         return out

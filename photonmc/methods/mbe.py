@@ -193,7 +193,6 @@ class Mbe(Vcm):
         # halves of the light side, which the effort balance compares (methods/effort.py).
         self.light_frame = f.vector(3, ti.i64, (2 * self.n_levels, h, w))
         self.last_estimate = f.scalar(ti.f64, w * h)     # last iteration's luminance per pixel (effort)
-        self.effort_sums = f.scalar(ti.f64, 2)          # its spread, the halves' squared difference
         self.b_mis = f.scalar(ti.f32, self.n_levels)     # previous pass's normalisations (MIS only)
         self.pre_scale = f.scalar(ti.f32, self.n_levels)  # previous pass's level scales (see deposit)
         # light subpaths traced, their segments, their shadow rays, the camera vertices they
@@ -258,6 +257,7 @@ class Mbe(Vcm):
         self.light_work_last = np.zeros(3)      # light_counters[1:] after the last pass
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
         self.pre_scale_host = np.ones(self.n_levels, np.float32)   # pre_scale's value, read without a kernel
+        self.b_mis_host = np.ones(self.n_levels, np.float32)       # b_mis's, likewise
         self.steps_last = self.n_light
         self.b_last = np.zeros(self.n_levels)
         self.b_sum = np.zeros(self.n_levels)
@@ -293,11 +293,11 @@ class Mbe(Vcm):
         # tracing as many as with one (docs/mbe.md, "Camera subpaths per pass").
         ratio = self.n_pixels / steps
         eta = PI * self.radius ** 2 * self.n_pixels * k
-        kappa = (float(self.b_mis[0]) if self.modified_mis else 1.0) * ratio * k
-        self.consts[None] = [eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2]
-        self.n_subpaths[None] = n_subpaths
+        kappa = (float(self.b_mis_host[0]) if self.modified_mis else 1.0) * ratio * k
         # A pixel's estimate is the mean over its K subpaths: merging at each is 1/K of it.
         vm_normalization = 1.0 / (PI * self.radius ** 2 * steps * k)
+        self._set_iteration_constants(eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2, n_subpaths,
+                                      vm_normalization, ratio, 1.0 / steps)
         while True:
             self.store.clear(n_subpaths)
             # Compiled without Taichi's whole-kernel CSE, like the chain kernel (kernels/mcmc.py):
@@ -314,19 +314,19 @@ class Mbe(Vcm):
         self.vertices_sum += n
         self.store.finish(n_subpaths)
         self.grid.build(self.store.p, self.radius, self.store.valid, n)
-        self._set_normalizations(vm_normalization, ratio, steps)
         self.pool.begin_pass(self.chain_model)
         self.pool.run(self.chain_model, self.seed_u32, it, steps)
-        tallies = self.pool.tallies()
+        tallies = self.pool.tallies(extra=(self.light_counters,))
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * steps / np.maximum(recorded, 1e-300), 0.0)
-        self._observe_effort(steps, k, n, b, tallies["recorded_per_chain"], scale)
+        self._observe_effort(steps, k, n, b, tallies["recorded_per_chain"], scale, tallies["extra"][0])
         self._add_light_frames(*(scale / self.pre_scale_host.astype(np.float64)))
         self.film.flush()
         uploads = []
         if (b > 0).all():
-            uploads.append((self.b_mis, b.astype(np.float32)))
+            self.b_mis_host = b.astype(np.float32)
+            uploads.append((self.b_mis, self.b_mis_host))
         if (scale > 0).all():
             self.pre_scale_host = scale.astype(np.float32)
             uploads.append((self.pre_scale, self.pre_scale_host))
@@ -338,7 +338,7 @@ class Mbe(Vcm):
             self.passes_with_b += 1
         self.work_done += steps + n_subpaths
 
-    def _observe_effort(self, steps: int, k: int, vertices: int, b, recorded_per_chain, scale):
+    def _observe_effort(self, steps: int, k: int, vertices: int, b, recorded_per_chain, scale, light_counters):
         """The effort balance's view of this iteration (methods/effort.py), and with
         --camera-paths auto the next pass's K. The light side's variance comes from the even
         and odd ladders (independent; each half's estimate scaled by its own recorded weight),
@@ -352,9 +352,8 @@ class Mbe(Vcm):
         for parity in (0, 1):
             w = recorded_per_chain[parity::2].sum(axis=0)
             halves.append(np.where(w > 0, b * steps / np.maximum(w, 1e-300), 0.0) * unit)
-        self._effort_sums(*full, *halves[0], *halves[1])
-        sums, counters = download_fields((self.effort_sums, self.light_counters))
-        light_work = counters[1:].astype(np.float64)
+        sums = self._effort_sums(*full, *halves[0], *halves[1])
+        light_work = light_counters[1:].astype(np.float64)
         segments, rays, merges = light_work - self.light_work_last
         self.light_work_last = light_work
         n_even, n_odd = (self.n_chains + 1) // 2, self.n_chains // 2
@@ -370,7 +369,7 @@ class Mbe(Vcm):
 
     @ti.kernel
     def _effort_sums(self, full0: ti.f64, full1: ti.f64, even0: ti.f64, even1: ti.f64, odd0: ti.f64,
-                     odd1: ti.f64):
+                     odd1: ti.f64) -> ti.types.vector(2, ti.f64):
         """Before the light frames join the frame: the sum over pixels of (this iteration's
         estimate - the last one's)^2 and of (t_even - t_odd)^2, in luminance, in one fixed
         order (a serial loop) so that K, and so the image, does not depend on thread timing."""
@@ -391,11 +390,16 @@ class Mbe(Vcm):
             self.last_estimate[i] = e
             h = (f0e * even0 + f1e * even1 - f0o * odd0 - f1o * odd1).dot(y_weights)
             halves += h * h
-        self.effort_sums[0] = spread
-        self.effort_sums[1] = halves
+        return ti.Vector([spread, halves], ti.f64)
 
-    def _set_normalizations(self, vm_normalization: float, pairing: float, steps: int):
-        self._norms[None] = [vm_normalization, pairing, 1.0 / steps]
+    @ti.kernel
+    def _set_iteration_constants(self, eta: ti.f32, inv_eta: ti.f32, pixels: ti.f32, kappa: ti.f32, r2: ti.f32,
+                                 n_subpaths: ti.i32, vm_normalization: ti.f32, pairing: ti.f32, inv_steps: ti.f32):
+        """The iteration's MIS constants, subpath count and normalisations in one launch (each
+        field write from Python is a kernel launch of its own)."""
+        self.consts[None] = ti.Vector([eta, inv_eta, pixels, kappa, r2])
+        self.n_subpaths[None] = n_subpaths
+        self._norms[None] = ti.Vector([vm_normalization, pairing, inv_steps])
 
     # -- camera side: vcm's camera walk, storing vertices instead of using light ones ----
     @ti.func
