@@ -67,16 +67,15 @@ class SubpathVertices:
             self.path_count[i] = 0
 
     @ti.kernel
-    def _starts(self, n_paths: ti.i32):
+    def _finish(self, n_paths: ti.i32):
+        """Path starts (a serial prefix sum), then the order and the valid flags, in one
+        launch (the top-level loops run one after the other)."""
         ti.loop_config(serialize=True)
         for i in range(n_paths):
             if i == 0:
                 self.path_start[0] = 0
             else:
                 self.path_start[i] = self.path_start[i - 1] + self.path_count[i - 1]
-
-    @ti.kernel
-    def _order(self):
         n = self.count[None]
         for slot in range(self.capacity):
             self.valid[slot] = 0
@@ -86,5 +85,4 @@ class SubpathVertices:
 
     def finish(self, n_paths: int):
         """After the light pass: path order, and which slots hold a vertex (for the grid)."""
-        self._starts(n_paths)
-        self._order()
+        self._finish(n_paths)
