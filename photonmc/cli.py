@@ -150,7 +150,8 @@ def _add_vcm_options(parser):
     g.add_argument("--warm-start", action=argparse.BooleanOptionalAction, default=None,
                    help="mbe: a contribution chain starts each pass from its last state where that still "
                         "contributes (default); --no-warm-start: from a bootstrap resampled in the pass "
-                        "(docs/mbe.md)")
+                        "(docs/mbe.md). spatial-tf: its upper levels likewise (default off; measured in "
+                        "docs/guiding.md)")
 
 
 def _method_options(args) -> dict:

@@ -73,7 +73,11 @@ def _estimates(params: dict, photons: int, iterations: int, seed: int, camera_pa
     # alpha near 1: the radii stay put, so V_p does not change with the photon count.
     job = Job(scene=str(SCENES / params.pop("scene") / "scene.xml"), params=params, method="sppm", seed=seed,
               options={"photons": photons, "alpha": 0.999, "camera_paths": camera_paths})
-    p = job.prepare()
+    return shares_after(job.prepare(), iterations)
+
+
+def shares_after(p, iterations: int):
+    """(V_c, V_p) of a prepared render's effort balance after `iterations` (then released)."""
     try:
         for _ in range(iterations):
             p.method.iterate()

@@ -15,6 +15,7 @@ from photonmc.loop import Budget, prepare, run
 from photonmc.metrics import luminance, mean_luminance
 
 from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml
+from .test_effort import shares_after
 from .test_pt import furnace_expectation, furnace_xml
 
 
@@ -68,13 +69,7 @@ def test_several_camera_subpaths_per_pixel_keep_the_furnace(write_scene):
 
 def _effort_estimates(scene, iterations, seed, **options):
     """(V_c, V_p) of mbe's effort balance after `iterations` at a fixed radius (alpha 1)."""
-    p = prepare(scene, method="mbe", seed=seed, options={"alpha": 1.0, **options})
-    try:
-        for _ in range(iterations):
-            p.method.iterate()
-        return p.method.effort.shares()
-    finally:
-        p.release()
+    return shares_after(prepare(scene, method="mbe", seed=seed, options={"alpha": 1.0, **options}), iterations)
 
 
 def test_effort_estimates_agree_across_pass_lengths_and_camera_subpaths():

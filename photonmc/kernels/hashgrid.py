@@ -102,6 +102,12 @@ class HashGrid:
 
     @ti.kernel
     def _prefix_sum(self, slots: ti.i32):
+        self._cell_starts(slots)
+
+    @ti.func
+    def _cell_starts(self, slots):
+        """cell_start = exclusive prefix sum of cell_count over the first `slots` slots (a
+        serial loop; called at a kernel's top level)."""
         ti.loop_config(serialize=True)
         for h in range(slots):
             if h == 0:
@@ -172,12 +178,7 @@ class PointGrid(HashGrid):
         for i in range(count):
             if valid[i]:
                 ti.atomic_add(self.cell_count[self.slot(self.cell_of(pos[i]))], 1)
-        ti.loop_config(serialize=True)
-        for h in range(slots):
-            if h == 0:
-                self.cell_start[0] = 0
-            else:
-                self.cell_start[h] = self.cell_start[h - 1] + self.cell_count[h - 1]
+        self._cell_starts(slots)
         for i in range(count):
             if valid[i]:
                 h = self.slot(self.cell_of(pos[i]))

@@ -79,7 +79,7 @@ class GuidedPhotons(Sppm):
     default_iterations = 100
     OPTIONS = {**Sppm.OPTIONS, "chains": None, "target_acceptance": 0.234, "proposal_failures": "keep",
                "expected_values": False, "suffix_mutation": SUFFIX_MUTATION,
-               "mutation": "joint"}
+               "mutation": "joint", "warm_start": False, "ladder_burn_in": LADDER_BURN_IN}
     path_target_sum = False
     # Passes last until every chain regenerates (_steps_this_pass), so where the error is
     # camera-side they would starve the camera passes: the effort balance chooses how many
@@ -121,9 +121,16 @@ class GuidedPhotons(Sppm):
             blocks = tuple(d for d in (0,) + tuple(LIGHT_DIMS + BOUNCE_DIMS * k for k in range(MUTATION_BLOCKS - 1))
                            if d < dims)
         self.mutation_blocks = len(blocks)
+        # API options, measured in docs/guiding.md ("Upper levels kept across passes"): the
+        # upper levels start each pass from their last states where those still have a
+        # non-zero target (warm_start), and the share of each pass the ladders discard.
+        burn_in = float(opts["ladder_burn_in"])
+        if not 0.0 <= burn_in < 1.0:
+            raise SettingsError(f"ladder_burn_in is a fraction of each pass in [0, 1), got {burn_in}")
         self.pool = ChainPool(self.n_chains, self.n_levels, dims, self.drop_failures, self.expected_values,
-                              burn_in=LADDER_BURN_IN if self.n_levels > 1 else 0.0,
-                              suffix_mutation=self.suffix_mutation, suffix_starts=starts, block_starts=blocks)
+                              burn_in=burn_in if self.n_levels > 1 else 0.0,
+                              suffix_mutation=self.suffix_mutation, suffix_starts=starts, block_starts=blocks,
+                              warm_start=bool(opts["warm_start"]) and self.n_levels > 1)
         f = FieldGroup(f"guided-{self.name}")
         L, n, c = self.n_levels, self.n_mp, self.n_chains
         self.target_scratch = f.vector(L, ti.f32, c)

@@ -2,18 +2,20 @@
 
 VCM whose light subpaths come from Markov chains in primary sample space, evaluated against
 the iteration's stored camera subpaths. Each iteration:
-1. camera pass: one stratified subpath per pixel (K with --camera-paths; vcm's camera walk)
-   adds the camera-only techniques straight to the frame (emitter hits, next-event
-   estimation) and stores every non-delta vertex, with its MIS partial sums, by pixel and in
-   a hash grid of radius r_i;
+1. camera pass: K stratified subpaths per pixel (vcm's camera walk; K chosen per pass by
+   the effort balance of methods/effort.py with --camera-paths auto, the default) add the
+   camera-only techniques straight to the frame (emitter hits, next-event estimation) and
+   store every non-delta vertex, with its MIS partial sums, by pixel and in a hash grid of
+   radius r_i;
 2. chain pass: `--light-paths` steps of the chain ladders (kernels/mcmc.py). A state u is one
    light subpath plus one coordinate that picks the camera subpath it connects to; evaluating
    it traces the light subpath and, at each non-delta light vertex, traces it to the camera,
    connects it to every vertex of the paired camera subpath and merges it with every camera
    vertex within r_i. Its splat list F(u) is what it adds to the image;
 3. two chains per ladder: level 0 targets T_V = 1[F(u) != 0] (uniform proposals, the H&J
-   loop), level 1 targets T_C = luminance of F(u) (mutations only, started by resampling the
-   bootstrap's uniform proposals), replica exchange between them; the contribution chain
+   loop), level 1 targets T_C = luminance of F(u) (mutations only, started from its last
+   state where that still contributes, the warm start, else by resampling the bootstrap's
+   uniform proposals), replica exchange between them; the contribution chain
    records the second half of each pass only (start-up bias, BOOTSTRAP_FRACTION), the
    visibility chain, exact from its first visible uniform proposal, the whole pass, and the
    exchanges wait for the second half (option base_in_burn_in). Each record splats
@@ -31,6 +33,10 @@ MIS: `--mis plain` (default) keeps VCM's weights; `--mis modified` counts the ca
 techniques b_V times (kappa in kernels/vcm_mis.py): chain samples have density 1/b_V on the
 support of T_V. Both are unbiased (the weights of each full path sum to one); plain measured
 lower error on both gap-lit scenes (docs/mbe.md).
+
+Effort balance (--camera-paths auto): the light side's variance from the even against the
+odd ladders (light_frame per level and ladder parity), the camera side's from consecutive
+iterations, work counted; K = N_L / n* (docs/mbe.md, "The defaults").
 """
 import math
 
