@@ -96,6 +96,25 @@ def test_effort_estimates_agree_across_pass_lengths_and_camera_subpaths():
     assert 0.25 * short[1] < four[1] < short[1]
 
 
+def test_camera_paths_auto_follows_where_the_error_is():
+    """The balance gives the camera side more subpaths where its error dominates and keeps one
+    where the light side's does, 16x16, 40 iterations: the Cornell box (its lamp seen
+    directly; measured K 12-13 from the fifth pass on) against the caustic (light focused
+    through a glass sphere; measured K = 1 throughout). A balance that ignored its
+    measurements, or a V_p or V_c estimate off by orders of magnitude, would not part them."""
+    chosen = {}
+    for name in ("cornell-box", "caustic"):
+        p = prepare(load_scene(SCENES / name / "scene.xml", {"res": 16}), method="mbe", seed=1)
+        try:
+            for _ in range(40):
+                p.method.iterate()
+            chosen[name] = p.method.camera_paths
+        finally:
+            p.release()
+    print("K after 40 iterations", chosen)
+    assert chosen["cornell-box"] >= 4 and chosen["caustic"] <= 2
+
+
 def test_camera_paths_auto_keeps_the_furnace_and_reports_its_choice(write_scene):
     """--camera-paths auto: K changes from pass to pass (MIS counts and pairing follow it);
     the furnace keeps its analytic radiance, and the stats say what was chosen."""
