@@ -152,6 +152,10 @@ def _add_vcm_options(parser):
                         "contributes (default); --no-warm-start: from a bootstrap resampled in the pass "
                         "(docs/mbe.md). spatial-tf: its upper levels likewise (default off; measured in "
                         "docs/guiding.md)")
+    g.add_argument("--balance", choices=["mse", "relmse"],
+                   help="mbe: what the effort balance behind --camera-paths auto minimises: the image's MSE "
+                        "(default) or its relative MSE, each pixel's error weighted by 1 / (its running mean^2 "
+                        "+ (0.1 x the image's mean)^2) (docs/mbe.md)")
 
 
 def _method_options(args) -> dict:
@@ -160,7 +164,8 @@ def _method_options(args) -> dict:
             "expected_values": args.expected_values, "path_target": args.path_target,
             "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis,
             "large_step": args.large_step, "suffix_mutation": args.suffix_mutation,
-            "mutation": args.mutation, "warm_start": args.warm_start}
+            "mutation": args.mutation, "warm_start": args.warm_start,
+            "balance": args.balance}
 
 
 def _seed_list(text: str) -> list[int]:

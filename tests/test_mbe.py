@@ -177,7 +177,7 @@ def test_seed_determinism():
     ({"alpha": 0.0}, "--alpha"), ({"techniques": "bpt"}, "does not take --techniques"),
     ({"photons": 100}, "does not take --photons"), ({"camera_paths": 0}, "--camera-paths"),
     ({"camera_paths": "many"}, "--camera-paths"), ({"camera_paths": 65}, "--camera-paths"),
-    ({"camera_paths": "auto", "chains": 1}, "--chains 2 or more"),
+    ({"camera_paths": "auto", "chains": 1}, "--chains 2 or more"), ({"balance": "l2"}, "--balance"),
 ])
 def test_bad_options(options, message):
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})

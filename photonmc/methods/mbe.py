@@ -149,7 +149,8 @@ class Mbe(Vcm):
     independent_iterations = False      # the chains carry their states and mutation sizes on
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
-               "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True}
+               "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True,
+               "balance": "mse"}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
@@ -170,6 +171,9 @@ class Mbe(Vcm):
         self.n_chains = int(opts["chains"] if opts["chains"] is not None else DEFAULT_CHAINS)
         if not 1 <= self.n_chains <= MAX_CHAINS:
             raise SettingsError(f"--chains must be between 1 and {MAX_CHAINS}, got {self.n_chains}")
+        if opts["balance"] not in ("mse", "relmse"):
+            raise SettingsError(f"--balance must be 'mse' or 'relmse', got '{opts['balance']}'")
+        self.relative_balance = opts["balance"] == "relmse"
         if self.camera_paths_auto and self.n_chains < 2:
             raise SettingsError("--camera-paths auto needs --chains 2 or more: the balance measures the light "
                                 "side's variance from two independent halves of the ladders (docs/mbe.md)")
@@ -358,7 +362,8 @@ class Mbe(Vcm):
         for parity in (0, 1):
             w = recorded_per_chain[parity::2].sum(axis=0)
             halves.append(np.where(w > 0, b * steps / np.maximum(w, 1e-300), 0.0) * unit)
-        sums = self._effort_sums(*full, *halves[0], *halves[1])
+        sums = self._effort_sums(*full, *halves[0], *halves[1], int(self.relative_balance),
+                                 max(self.film.film.samples_per_pixel, 0))
         light_work = light_counters[1:].astype(np.float64)
         segments, rays, merges = light_work - self.light_work_last
         self.light_work_last = light_work
@@ -375,13 +380,22 @@ class Mbe(Vcm):
 
     @ti.kernel
     def _effort_sums(self, full0: ti.f64, full1: ti.f64, even0: ti.f64, even1: ti.f64, odd0: ti.f64,
-                     odd1: ti.f64) -> ti.types.vector(2, ti.f64):
+                     odd1: ti.f64, relative: ti.i32, samples: ti.i32) -> ti.types.vector(2, ti.f64):
         """Before the light frames join the frame: the sum over pixels of (this iteration's
         estimate - the last one's)^2 and of (t_even - t_odd)^2, in luminance, in one fixed
-        order (a serial loop) so that K, and so the image, does not depend on thread timing."""
+        order (a serial loop) so that K, and so the image, does not depend on thread timing.
+        relative (--balance relmse): each pixel weighted by 1 / (m^2 + eps), m its running
+        mean over `samples` iterations, eps = (0.1 x the image's mean m)^2 (converge's relMSE)."""
         w = ti.static(self.dscene.width)
         y_weights = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
         spread, halves = ti.f64(0.0), ti.f64(0.0)
+        inv_samples = 1.0 / ti.cast(ti.max(samples, 1), ti.f64)
+        mean_all = ti.f64(0.0)
+        ti.loop_config(serialize=True)
+        for i in range(self.n_pixels):
+            if relative and samples > 0:
+                mean_all += self.film.film.sum[i // w, i % w].dot(y_weights) * inv_samples
+        eps = ti.max((0.1 * mean_all / ti.static(self.n_pixels)) ** 2, 1e-30)
         ti.loop_config(serialize=True)
         for i in range(self.n_pixels):
             y, x = i // w, i % w
@@ -391,11 +405,15 @@ class Mbe(Vcm):
             f1o = ti.cast(self.light_frame[3, y, x], ti.f64)
             e = (ti.cast(self.film.frame[y, x], ti.f64) * ti.static(self.film.unit) + (f0e + f0o) * full0
                  + (f1e + f1o) * full1).dot(y_weights)
+            weight = ti.f64(1.0)
+            if relative and samples > 0:
+                m = self.film.film.sum[y, x].dot(y_weights) * inv_samples
+                weight = 1.0 / (m * m + eps)
             d = e - self.last_estimate[i]
-            spread += d * d
+            spread += weight * d * d
             self.last_estimate[i] = e
             h = (f0e * even0 + f1e * even1 - f0o * odd0 - f1o * odd1).dot(y_weights)
-            halves += h * h
+            halves += weight * h * h
         return ti.Vector([spread, halves], ti.f64)
 
     @ti.kernel
