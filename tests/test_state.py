@@ -54,31 +54,21 @@ def test_resume_equals_straight_bit_for_bit(method, tmp_path):
     assert not np.array_equal(half.image, straight.image)
 
 
-def test_resume_of_balanced_sppm_equals_straight(tmp_path):
-    """--photons auto: the effort balance's history is part of the state, so the resumed
-    render picks the same photon counts and gives the same image."""
-    j = Job(scene=CORNELL, params=SMALL, method="sppm", seed=3, options={"photons": "auto"})
-    straight = rendered(j, 12)
-    [half] = state.load(state.save(tmp_path / "auto.state", [rendered(j, 6)]))
-    p, _ = resume(half)
-    for _ in range(6):
+@pytest.mark.parametrize("method,options,chosen,half", [
+    ("sppm", {"photons": "auto"}, "photons_per_iteration", 6),
+    ("mbe", {"light_paths": 256, "camera_paths": "auto"}, "camera_paths", 5)])
+def test_resume_of_a_balanced_render_equals_straight(tmp_path, method, options, chosen, half):
+    """sppm --photons auto, mbe --camera-paths auto: the effort balance's history (and mbe's
+    last estimate it compares with) is part of the state, so the resumed render makes the same
+    choices (photons per pass, camera subpaths per pixel) and gives the same image."""
+    j = Job(scene=CORNELL, params=SMALL, method=method, seed=3, options=options)
+    straight = rendered(j, 2 * half)
+    [saved] = state.load(state.save(tmp_path / "auto.state", [rendered(j, half)]))
+    p, _ = resume(saved)
+    for _ in range(half):
         p.method.iterate()
     assert np.array_equal(p.method.image(), straight.image)
-    assert p.method.photons_per_iteration == straight.plain["photons_per_iteration"]
-    p.release()
-
-
-def test_resume_of_mbe_with_camera_paths_auto_equals_straight(tmp_path):
-    """mbe --camera-paths auto: the balance's history and the last estimate it compares with
-    are part of the state, so the resumed render picks the same K and gives the same image."""
-    j = Job(scene=CORNELL, params=SMALL, method="mbe", seed=3, options={"light_paths": 256, "camera_paths": "auto"})
-    straight = rendered(j, 10)
-    [half] = state.load(state.save(tmp_path / "auto.state", [rendered(j, 5)]))
-    p, _ = resume(half)
-    for _ in range(5):
-        p.method.iterate()
-    assert np.array_equal(p.method.image(), straight.image)
-    assert p.method.camera_paths == straight.plain["camera_paths"]
+    assert getattr(p.method, chosen) == straight.plain[chosen]
     p.release()
 
 
