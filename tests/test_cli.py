@@ -84,6 +84,8 @@ BAD = {
     "light paths for sppm": (["render", *SMALL, "--method", "sppm", "--light-paths", "9"],
                              "does not take --light-paths"),
     "warm start for vcm": (["render", *SMALL, "--method", "vcm", "--warm-start"], "does not take --warm-start"),
+    "warm start for visibility": (["render", *SMALL, "--method", "visibility", "--warm-start"],
+                                  "has one chain per ladder"),
     "mbe camera paths auto on one ladder": (["render", *SMALL, "--method", "mbe", "--camera-paths", "auto",
                                              "--chains", "1"], "--camera-paths auto needs --chains 2 or more"),
     "mbe camera paths too many": (["render", *SMALL, "--method", "mbe", "--camera-paths", "65"],

@@ -24,9 +24,10 @@ def render(scene, method, iterations, seed=0, max_depth=None, **options):
 
 @pytest.mark.parametrize("method,options", [("visibility", {}), ("visibility", {"suffix_mutation": 0.5}),
                                             ("visibility", {"mutation": "blocks"}),
-                                            ("spatial-tf", {}), ("spatial-tf", {"expected_values": True})],
+                                            ("spatial-tf", {}), ("spatial-tf", {"expected_values": True}),
+                                            ("spatial-tf", {"warm_start": True, "ladder_burn_in": 0.25})],
                          ids=["visibility", "visibility-suffix-moves", "visibility-block-moves", "spatial-tf",
-                              "spatial-tf-expected-values"])
+                              "spatial-tf-expected-values", "spatial-tf-warm-start"])
 def test_sphere_furnace(write_scene, method, options):
     """Inside an emitting diffuse sphere the answer is analytic and SPPM's density estimate has
     no blur bias: the Markov-chain estimators must hit it within noise. (Most photon paths are

@@ -127,10 +127,13 @@ class GuidedPhotons(Sppm):
         burn_in = float(opts["ladder_burn_in"])
         if not 0.0 <= burn_in < 1.0:
             raise SettingsError(f"ladder_burn_in is a fraction of each pass in [0, 1), got {burn_in}")
+        if self.n_levels == 1 and (opts["warm_start"] or burn_in != LADDER_BURN_IN):
+            raise SettingsError(f"{self.name} has one chain per ladder: --warm-start and ladder_burn_in are for "
+                                f"the upper levels of spatial-tf's ladders (and mbe's --warm-start)")
         self.pool = ChainPool(self.n_chains, self.n_levels, dims, self.drop_failures, self.expected_values,
                               burn_in=burn_in if self.n_levels > 1 else 0.0,
                               suffix_mutation=self.suffix_mutation, suffix_starts=starts, block_starts=blocks,
-                              warm_start=bool(opts["warm_start"]) and self.n_levels > 1)
+                              warm_start=bool(opts["warm_start"]))
         f = FieldGroup(f"guided-{self.name}")
         L, n, c = self.n_levels, self.n_mp, self.n_chains
         self.target_scratch = f.vector(L, ti.f32, c)
