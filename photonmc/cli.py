@@ -152,6 +152,12 @@ def _add_vcm_options(parser):
                         "contributes (default); --no-warm-start: from a bootstrap resampled in the pass "
                         "(docs/mbe.md). spatial-tf: its upper levels likewise (default off; measured in "
                         "docs/guiding.md)")
+    g.add_argument("--uniform-weight", metavar="auto|B",
+                   help="mbe: the share of the light side carried by the uniform proposals' own estimate "
+                        "(plain Monte Carlo) against the chains': auto (default) picks the share of least "
+                        "variance from the even and odd ladders and gives the uniform proposals at least that "
+                        "share of the steps; 0: the chains' estimate alone; 1: the uniform proposals' alone "
+                        "(docs/mbe.md)")
     g.add_argument("--balance", choices=["mse", "relmse"],
                    help="mbe: what the effort balance behind --camera-paths auto minimises: the image's MSE "
                         "(default) or its relative MSE, each pixel's error weighted by 1 / (its running mean^2 "
@@ -165,7 +171,7 @@ def _method_options(args) -> dict:
             "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis,
             "large_step": args.large_step, "suffix_mutation": args.suffix_mutation,
             "mutation": args.mutation, "warm_start": args.warm_start,
-            "balance": args.balance}
+            "balance": args.balance, "uniform_weight": args.uniform_weight}
 
 
 def _seed_list(text: str) -> list[int]:

@@ -5,7 +5,7 @@ import math
 import pytest
 
 from photonmc.loop import Job
-from photonmc.methods.effort import EffortBalance
+from photonmc.methods.effort import EffortBalance, least_variance_share
 
 from .conftest import SCENES
 
@@ -53,6 +53,32 @@ def test_camera_paths_settle_at_the_photons_over_the_optimum_of_a_known_model():
     for _ in range(10):
         balance.observe(n, 2 * v_c + v_p * 2 / n, v_p, 1.0, camera_work, segments * n)
     assert balance.next_camera_paths(n, 8) == 2 and balance.next_camera_paths(100, 64) == 1
+
+
+@pytest.mark.parametrize("var_a,var_b,cov,share", [
+    (1.0, 3.0, 0.0, 0.75),       # independent: inverse-variance weights
+    (1.0, 1e6, 0.0, 1.0 - 1e-6),  # B useless
+    (4.0, 1.0, 1.0, 0.0),        # B as good as A can make it: (Var B - Cov) = 0
+    (4.0, 1.0, 2.0, 0.0),        # the optimum lies beyond B (w < 0): clamped
+    (2.0, 3.0, 1.0, 2.0 / 3.0),  # correlated: (3 - 1) / (2 + 3 - 2)
+    (1.0, 4.0, 1.5, 1.0),        # the optimum lies beyond A: clamped
+])
+def test_least_variance_share_of_two_estimates(var_a, var_b, cov, share):
+    """mbe's weight of the uniform proposals' estimate against the chains' (methods/mbe.py):
+    the w minimising Var(w A + (1 - w) B), clamped to [0, 1]; at it the combination is never
+    worse than either estimate alone."""
+    w = least_variance_share(var_a, var_b, cov)
+    assert w == pytest.approx(share, abs=1e-9)
+    combined = w * w * var_a + (1 - w) ** 2 * var_b + 2 * w * (1 - w) * cov
+    assert combined <= min(var_a, var_b) + 1e-12
+    for other in (0.0, 0.25, 0.5, 0.9, 1.0):          # and no other weight does better
+        assert combined <= other ** 2 * var_a + (1 - other) ** 2 * var_b + 2 * other * (1 - other) * cov + 1e-12
+
+
+def test_least_variance_share_of_indistinguishable_estimates_is_undefined():
+    """Var(A - B) = 0: no weight is better than another, so the caller keeps its last one."""
+    assert least_variance_share(2.0, 2.0, 2.0) is None
+    assert least_variance_share(0.0, 0.0, 0.0) is None
 
 
 def test_no_photon_seen_holds_photons_and_no_camera_error_raises_them():

@@ -67,6 +67,21 @@ def test_several_camera_subpaths_per_pixel_keep_the_furnace(write_scene):
     assert r.stats["camera_vertices_last_iteration"] > 2 * 16 * 16
 
 
+@pytest.mark.parametrize("uniform_weight", [1.0, "auto"])
+def test_uniform_proposals_estimate_keeps_the_furnace(write_scene, uniform_weight):
+    """The uniform proposals' own estimate of the light side (every uniform proposal's splat
+    list, visible or not, as plain Monte Carlo) alone, and joined to the chains' with the
+    weight chosen from the even and odd ladders: the analytic radiance either way. Every light
+    subpath contributes here, so the chosen weight favours the independent proposals."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    r = render(scene, 48, seed=2, max_depth=3, uniform_weight=uniform_weight)
+    lum = luminance(r.image)
+    expected = furnace_expectation(3)
+    assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected, lum.mean()
+    assert r.stats["uniform_weight_auto"] == (uniform_weight == "auto")
+    assert r.stats["uniform_weight"] > 0.5 if uniform_weight == "auto" else r.stats["uniform_weight"] == 1.0
+
+
 def _effort_estimates(scene, iterations, seed, **options):
     """(V_c, V_p) of mbe's effort balance after `iterations` at a fixed radius (alpha 1)."""
     return shares_after(prepare(scene, method="mbe", seed=seed, options={"alpha": 1.0, **options}), iterations)
@@ -178,6 +193,8 @@ def test_seed_determinism():
     ({"photons": 100}, "does not take --photons"), ({"camera_paths": 0}, "--camera-paths"),
     ({"camera_paths": "many"}, "--camera-paths"), ({"camera_paths": 65}, "--camera-paths"),
     ({"camera_paths": "auto", "chains": 1}, "--chains 2 or more"), ({"balance": "l2"}, "--balance"),
+    ({"uniform_weight": 1.5}, "--uniform-weight"), ({"uniform_weight": "most"}, "--uniform-weight"),
+    ({"uniform_weight": True}, "--uniform-weight"),
 ])
 def test_bad_options(options, message):
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})

@@ -204,6 +204,9 @@ class ChainPool:
             raise ValueError(f"large_step is a probability in [0, 1), got {large_step}")
         if large_step > 0.0 and expected_values:
             raise ValueError("one move per step (large_step > 0) records no expected values")
+        # One move per step is compiled in; its probability of a uniform proposal may change
+        # between passes (mbe raises it where the uniform proposals' estimate carries the
+        # light side, docs/mbe.md), so it is a kernel argument.
         self.large_step = float(large_step)
         self.one_move = large_step > 0.0
         if not 0.0 <= suffix_mutation < 1.0:
@@ -238,6 +241,7 @@ class ChainPool:
         self.recorded = f.scalar(ti.f64, (n_chains, n_levels))
         self.ratio = f.scalar(ti.f64, (n_chains, n_levels))
         self.uniform_T = f.scalar(ti.f64, (n_chains, n_levels))   # sum of T_l over uniform proposals
+        self.uniform_n = f.scalar(ti.f64, n_chains)                # uniform proposals per ladder
         self.recording = f.scalar(ti.i32, n_chains)      # 0 while the ladder burns in (see run)
         self.seeding_phase = f.scalar(ti.i32, n_chains)  # 1 while the ladder's bootstrap runs (resample)
         # Weighted reservoirs of the bootstrap, per ladder and level: the kept uniform
@@ -263,7 +267,8 @@ class ChainPool:
     def reset(self):
         """Empty every chain (they restart from uniform proposals) and theta."""
         fill_fields([(f, 0) for f in (self.u, self.ell, self.T, self.pending, self.counters, self.recorded,
-                                      self.ratio, self.fresh, self.uniform_T)] + [(self.theta, THETA_START)] +
+                                      self.ratio, self.fresh, self.uniform_T, self.uniform_n)] +
+                    [(self.theta, THETA_START)] +
                     ([(self.block_theta, THETA_START), (self.block_counters, 0)] if self.n_blocks > 1 else []))
         self.level_slot.from_numpy(np.arange(self.n_slots, dtype=np.int32).reshape(self.n_chains, self.n_levels))
         self.adapt_passes[:] = 0
@@ -289,11 +294,11 @@ class ChainPool:
         light-gap, docs/guiding.md). So a pass records level 0 only from its first visible
         uniform proposal on (an exact draw from the new target, after which Metropolis keeps
         the chain exact), and a higher level only once seeded from a fresh level below."""
-        fill_fields((f, 0) for f in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T,
+        fill_fields((f, 0) for f in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.uniform_n,
                                      self.reservoir_sum, self.reservoir_hits, self.adopted) +
                     ((self.block_counters,) if self.n_blocks > 1 else ()))
         with _chain_kernel_compilation():
-            self._run(model, 0, 0, 0, 0.0, 0.5, PROBE)
+            self._run(model, 0, 0, 0, 0.0, 0.5, self.large_step, PROBE)
         if self.warm_start:
             self._warm_start()
 
@@ -310,15 +315,15 @@ class ChainPool:
         base_records_in_burn_in it records the whole pass and exchanges it with level 1 only
         after the burn-in (mbe, docs/mbe.md)."""
         with _chain_kernel_compilation():
-            self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, STEPS)
-            self._run(model, seed, iteration, 0, 0.0, 0.5, DEPOSIT)
+            self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, self.large_step, STEPS)
+            self._run(model, seed, iteration, 0, 0.0, 0.5, self.large_step, DEPOSIT)
 
     def tallies(self, extra=()) -> dict:
         """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l];
         `extra` fields of the caller's are read in the same batch (out["extra"])."""
         extra = tuple(extra)
-        c, rec, ratio, uniform_T, *rest = download_fields(
-            (self.counters, self.recorded, self.ratio, self.uniform_T) + extra +
+        c, rec, ratio, uniform_T, uniform_n, *rest = download_fields(
+            (self.counters, self.recorded, self.ratio, self.uniform_T, self.uniform_n) + extra +
             ((self.block_counters,) if self.n_blocks > 1 else ()))
         more, blocks = rest[:len(extra)], rest[len(extra):]
         rec_per_chain, rec = rec, rec.sum(axis=0)
@@ -326,7 +331,7 @@ class ChainPool:
         n_uniform = max(int(c[0, UNIFORM]), 1)
         out = {"counters": c, "recorded": rec, "recorded_per_chain": rec_per_chain,
                "mean_ratio": np.divide(ratio, rec, out=np.zeros_like(ratio), where=rec > 0),
-               "uniform_mean": uniform_T.sum(axis=0) / n_uniform, "extra": more}
+               "uniform_mean": uniform_T.sum(axis=0) / n_uniform, "uniform_per_chain": uniform_n, "extra": more}
         if self.n_blocks > 1:
             out["block_counters"] = blocks[0]
         return out
@@ -370,9 +375,10 @@ class ChainPool:
     # -- kernels ------------------------------------------------------------------------
     @ti.kernel
     def _run(self, model: ti.template(), seed: ti.u32, iteration: ti.u32, steps: ti.i32, burn_in: ti.f32,
-             bootstrap: ti.f32, task: ti.i32):
+             bootstrap: ti.f32, large_step: ti.f32, task: ti.i32):
         """task STEPS: `steps` chain steps spread over the ladders. PROBE / DEPOSIT: visit
-        every level's stored state once (_step)."""
+        every level's stored state once (_step). large_step: this pass's probability of a
+        uniform proposal (one move per step)."""
         base = steps // self.n_chains
         extra = steps % self.n_chains
         for item in range(self.n_chains * ti.static(self.stride)):
@@ -390,7 +396,7 @@ class ChainPool:
                             self._seed_from_reservoirs(c, i >= seeding_steps)
                             self.seeding_phase[c] = 1 if i < seeding_steps else 0
                         self.recording[c] = 1 if i >= burn else 0
-                    self._step(model, c, state, task)
+                    self._step(model, c, state, task, large_step)
 
     @ti.kernel
     def _warm_start(self):
@@ -406,7 +412,7 @@ class ChainPool:
 
     # -- one step of one ladder ------------------------------------------------------------
     @ti.func
-    def _step(self, model: ti.template(), c, state: ti.template(), task):
+    def _step(self, model: ti.template(), c, state: ti.template(), task, large_step):
         """Move 0: a uniform proposal for level 0 (the exchange with the implicit uniform chain:
         a visible one is always taken, since the swap ratio is V(u_uniform) = 1). Move 1: if it
         was invisible, a mutation of level 0. Moves 2..: a mutation of each higher level.
@@ -427,9 +433,8 @@ class ChainPool:
         if ti.static(self.one_move) and not visit:
             r = rng.next_float(state)
             chosen = 0
-            if r >= ti.static(self.large_step):
-                pick = ti.cast((r - ti.static(self.large_step)) / ti.static(1.0 - self.large_step) * self.n_levels,
-                               ti.i32)
+            if r >= large_step:
+                pick = ti.cast((r - large_step) / (1.0 - large_step) * self.n_levels, ti.i32)
                 chosen = 1 + ti.min(pick, self.n_levels - 1)
         for move in range(self.n_levels + 1):
             level = ti.max(move - 1, 0)
@@ -557,6 +562,7 @@ class ChainPool:
         accept = 0
         if move == 0:
             ti.atomic_add(self.counters[0, UNIFORM], 1)
+            self.uniform_n[c] += 1.0
             for k in ti.static(range(self.n_levels)):
                 self.uniform_T[c, k] += ti.cast(t_new[k], ti.f64)
             if t_new[0] > 0.0:

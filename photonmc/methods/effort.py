@@ -151,3 +151,15 @@ class EffortBalance:
                 "photon_variance_per_photon": shares[1] if shares else None,
                 "camera_work_per_pass": self.sum_camera_work / self.observed if self.observed else None,
                 "segments_per_photon": self.sum_photon_work / self.sum_photons if self.sum_photons else None}
+
+
+def least_variance_share(var_a: float, var_b: float, cov: float) -> float | None:
+    """The weight w of estimate A in w A + (1 - w) B (two estimates of one quantity) that
+    minimises its variance w^2 Var A + (1 - w)^2 Var B + 2 w (1 - w) Cov(A, B):
+    w = (Var B - Cov) / (Var A + Var B - 2 Cov), clamped to [0, 1]. None where the two are
+    indistinguishable (Var(A - B) = 0), so that the caller keeps its last weight."""
+    denom = var_a + var_b - 2.0 * cov
+    if not denom > 0.0:
+        return None
+    return float(min(max((var_b - cov) / denom, 0.0), 1.0))
+

@@ -52,6 +52,7 @@ from ..kernels.fields import FieldGroup
 from ..kernels.mcmc import (
     ACCEPTED,
     DEPOSIT,
+    MODE_BITS,
     MUTATIONS,
     N_COUNTERS,
     PROBE,
@@ -61,6 +62,7 @@ from ..kernels.mcmc import (
     SWAPS_ACCEPTED,
     SWAPS_TRIED,
     UNIFORM,
+    UNIFORM_MODE,
     UNIFORM_VISIBLE,
     ChainPool,
 )
@@ -68,7 +70,7 @@ from ..kernels.photon import dimensions, photon_segments, trace_photon
 from ..kernels.sampling import luminance, vec3
 from ..kernels.subpath_store import BYTES_PER_STORED_VERTEX
 from ..kernels.vcm_mis import PathVertex
-from .effort import EffortBalance
+from .effort import EffortBalance, least_variance_share
 from .guided import LADDER_BURN_IN
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 
@@ -113,6 +115,10 @@ MAX_CHAINS = 1 << 16
 # One proposal per chain step, a uniform one (large step) with this probability: the value of
 # both reference implementations (algorithms.md §4.2); 0 makes every move every step.
 LARGE_STEP = 0.3
+# --uniform-weight auto: the sums beta is chosen from forget this share per pass, so that beta
+# follows the large-step probability it steers (below); at most this probability.
+UNIFORM_WEIGHT_MEMORY = 0.9
+MAX_LARGE_STEP = 0.95
 BOOTSTRAP_HITS = 8       # visible uniform proposals a contribution chain's start is resampled from
 # The contribution chain makes small steps only and mixes slowly from its resampled start:
 # recorded from that start, the gap-lit room's contribution level came out 3 % low (whole
@@ -150,7 +156,7 @@ class Mbe(Vcm):
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
                "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True,
-               "balance": "mse"}
+               "balance": "mse", "uniform_weight": "auto"}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
@@ -174,6 +180,7 @@ class Mbe(Vcm):
         if opts["balance"] not in ("mse", "relmse"):
             raise SettingsError(f"--balance must be 'mse' or 'relmse', got '{opts['balance']}'")
         self.relative_balance = opts["balance"] == "relmse"
+        self.uniform_weight_auto, self.uniform_weight_fixed = self._uniform_weight_option(opts["uniform_weight"])
         if self.camera_paths_auto and self.n_chains < 2:
             raise SettingsError("--camera-paths auto needs --chains 2 or more: the balance measures the light "
                                 "side's variance from two independent halves of the ladders (docs/mbe.md)")
@@ -202,6 +209,11 @@ class Mbe(Vcm):
         # Per level and ladder parity (index 2 level + ladder % 2): the even and odd ladders'
         # halves of the light side, which the effort balance compares (methods/effort.py).
         self.light_frame = f.vector(3, ti.i64, (2 * self.n_levels, h, w))
+        # The uniform proposals' own estimate of the light side (plain Monte Carlo: every
+        # uniform proposal's splat list, visible or not), per ladder parity; it joins the
+        # chains' with the weight beta (see _update_uniform_weight).
+        self.uniform_frame = f.vector(3, ti.i64, (2, h, w))
+        self.uniform_probe = f.scalar(ti.i32, c)         # 1 while ladder c probes a uniform proposal
         self.last_estimate = f.scalar(ti.f64, w * h)     # last iteration's luminance per pixel (effort)
         self.b_mis = f.scalar(ti.f32, self.n_levels)     # previous pass's normalisations (MIS only)
         self.pre_scale = f.scalar(ti.f32, self.n_levels)  # previous pass's level scales (see deposit)
@@ -236,6 +248,21 @@ class Mbe(Vcm):
                                 f"got '{value}'")
         return int(k), False, int(k)
 
+    @staticmethod
+    def _uniform_weight_option(value) -> tuple[bool, float]:
+        """uniform_weight: 'auto' (the default: chosen from the measured variances) or a fixed
+        share in [0, 1] of the light side that the uniform proposals' estimate carries
+        (0: the chains' alone, as before; 1: the uniform proposals' alone, VCM's estimator)."""
+        if value is None or value == "auto":
+            return True, 0.0
+        try:
+            beta = float(value)
+        except (TypeError, ValueError):
+            beta = float("nan")
+        if isinstance(value, bool) or not 0.0 <= beta <= 1.0:
+            raise SettingsError(f"--uniform-weight must be 'auto' or a number in [0, 1], got '{value}'")
+        return False, beta
+
     def _stored_paths(self) -> int:
         """mbe stores the camera subpaths' vertices: as many subpaths per pixel as it may trace."""
         return self.n_pixels * self.max_camera_paths
@@ -260,9 +287,14 @@ class Mbe(Vcm):
 
     def _reset_chains(self):
         fill_fields([(self.b_mis, 1.0), (self.pre_scale, 1.0), (self.light_counters, 0), (self.light_frame, 0),
-                     (self.list_stats, 0), (self.last_estimate, 0.0)])
+                     (self.uniform_frame, 0), (self.list_stats, 0), (self.last_estimate, 0.0)])
+        # beta, the uniform proposals' share of the light side, and the sums over passes of the
+        # squared even-odd differences it is chosen from (uniform, chains, their product)
+        self.uniform_weight = 0.0 if self.uniform_weight_auto else self.uniform_weight_fixed
+        self.uniform_weight_sums = np.zeros(3)
         if self.camera_paths_auto:
             self.camera_paths = 1
+        self.pool.large_step = self.large_step
         self.effort = EffortBalance(self.n_pixels, self.n_light, self.alpha)   # steers K with auto; stats
         self.light_work_last = np.zeros(3)      # light_counters[1:] after the last pass
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
@@ -284,7 +316,7 @@ class Mbe(Vcm):
         n = self.n_light
         if self.iterations > 0:
             b0 = self.b_last[0]
-            uniform_per_step = self.large_step if self.large_step > 0 else 1.0
+            uniform_per_step = self.pool.large_step if self.pool.large_step > 0 else 1.0
             want = self.steps_last * 2 if b0 <= 0 else math.ceil(REGENERATIONS / (b0 * uniform_per_step)) * self.n_chains
             n = max(n, min(int(want), MAX_PASS_FACTOR * self.n_light))
         self.steps_last = n
@@ -298,11 +330,17 @@ class Mbe(Vcm):
         n_subpaths = k * self.n_pixels
         # Sample counts relative to the connections': a light subpath connects to one of the
         # K x pixels camera subpaths, so a pixel gets N_L / pixels connections whatever K;
-        # merging (every camera vertex with every light vertex) and the camera-only
-        # techniques (emitter hits, NEE) make K times as many samples per pixel, light
-        # tracing as many as with one (docs/mbe.md, "Camera subpaths per pass").
+        # the camera-only techniques (emitter hits, NEE) make K times as many independent
+        # samples per pixel, light tracing as many as with one. Merging counts as with one
+        # camera subpath: the K subpaths of a pixel merge with the same light vertices, so
+        # they are not K independent samples of it, and counting them K times (as until
+        # 2026-12-03) handed merging, the biased technique, a K times larger share: on the
+        # held-out doorway room at K = 3 and 300 iterations RMSE 0.00165 -> 0.00135 and mean
+        # -4.7 % -> -2.6 % (K = 1: -3.5 %), Cornell box at K = 8 0.0230 -> 0.0222
+        # (docs/mbe.md, "Merging's count with K camera subpaths"). Any positive counts keep
+        # the weights of every path summing to one (tests/test_vcm_mis.py).
         ratio = self.n_pixels / steps
-        eta = PI * self.radius ** 2 * self.n_pixels * k
+        eta = PI * self.radius ** 2 * self.n_pixels
         kappa = (float(self.b_mis_host[0]) if self.modified_mis else 1.0) * ratio * k
         # A pixel's estimate is the mean over its K subpaths: merging at each is 1/K of it.
         vm_normalization = 1.0 / (PI * self.radius ** 2 * steps * k)
@@ -330,8 +368,15 @@ class Mbe(Vcm):
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * steps / np.maximum(recorded, 1e-300), 0.0)
-        self._observe_effort(steps, k, n, b, tallies["recorded_per_chain"], scale, tallies["extra"][0])
-        self._add_light_frames(*(scale / self.pre_scale_host.astype(np.float64)))
+        uniform_per_chain = tallies["uniform_per_chain"]
+        n_uniform = float(uniform_per_chain.sum())
+        # The light side: beta x the uniform proposals' estimate + (1 - beta) x the chains'.
+        beta = self.uniform_weight if n_uniform > 0 else 0.0
+        uniform_scale = steps / n_uniform if n_uniform > 0 else 0.0
+        self._observe_effort(steps, k, n, b, tallies["recorded_per_chain"], scale, uniform_per_chain, beta,
+                             tallies["extra"][0])
+        self._add_light_frames(*((1.0 - beta) * scale / self.pre_scale_host.astype(np.float64)),
+                               beta * uniform_scale)
         self.film.flush()
         uploads = []
         if (b > 0).all():
@@ -348,22 +393,32 @@ class Mbe(Vcm):
             self.passes_with_b += 1
         self.work_done += steps + n_subpaths
 
-    def _observe_effort(self, steps: int, k: int, vertices: int, b, recorded_per_chain, scale, light_counters):
+    def _observe_effort(self, steps: int, k: int, vertices: int, b, recorded_per_chain, scale, uniform_per_chain,
+                        beta: float, light_counters):
         """The effort balance's view of this iteration (methods/effort.py), and with
-        --camera-paths auto the next pass's K. The light side's variance comes from the even
-        and odd ladders (independent; each half's estimate scaled by its own recorded weight),
-        the camera side's from consecutive iterations; work is counted: camera rays (one per
-        subpath, an extension and a shadow ray per stored vertex) and one grid entry per
-        vertex, against light segments and shadow rays per chain step, with the merge
-        candidates, which grow with K at a fixed pass length, as camera work."""
+        --camera-paths auto the next pass's K; then the uniform proposals' weight beta for the
+        next pass. The light side's variance comes from the even and odd ladders
+        (independent; each half's estimate scaled by its own recorded weight, or uniform
+        proposals), the camera side's from consecutive iterations; work is counted: camera
+        rays (one per subpath, an extension and a shadow ray per stored vertex) and one grid
+        entry per vertex, against light segments and shadow rays per chain step, with the
+        merge candidates, which grow with K at a fixed pass length, as camera work."""
         unit = self.film.unit / self.pre_scale_host.astype(np.float64)
-        full = scale * unit
-        halves = []
+        full = (1.0 - beta) * scale * unit
+        halves, uniform_halves = [], []
         for parity in (0, 1):
             w = recorded_per_chain[parity::2].sum(axis=0)
             halves.append(np.where(w > 0, b * steps / np.maximum(w, 1e-300), 0.0) * unit)
-        sums = self._effort_sums(*full, *halves[0], *halves[1], int(self.relative_balance),
-                                 max(self.film.film.samples_per_pixel, 0))
+            n_u = float(uniform_per_chain[parity::2].sum())
+            uniform_halves.append(steps / n_u * self.film.unit if n_u > 0 else 0.0)
+        n_uniform = float(uniform_per_chain.sum())
+        full_uniform = beta * steps / n_uniform * self.film.unit if n_uniform > 0 else 0.0
+        sums = self._effort_sums(*full, full_uniform, *halves[0], uniform_halves[0], *halves[1], uniform_halves[1],
+                                 int(self.relative_balance), max(self.film.film.samples_per_pixel, 0))
+        # Squared even-odd differences summed over pixels: the chains', the uniform
+        # proposals', their product; the light side's is that of the combination.
+        s_chains, s_uniform, s_product = float(sums[1]), float(sums[2]), float(sums[3])
+        s_light = (1.0 - beta) ** 2 * s_chains + beta ** 2 * s_uniform + 2.0 * beta * (1.0 - beta) * s_product
         light_work = light_counters[1:].astype(np.float64)
         segments, rays, merges = light_work - self.light_work_last
         self.light_work_last = light_work
@@ -371,24 +426,50 @@ class Mbe(Vcm):
         # Var(t_even - t_odd) = (V_p / n) (c / n_even + c / n_odd) for c ladders in all; with
         # one ladder there are no halves, and the balance has nothing to go by (stats only).
         v_p_times_n = 0.0 if n_odd == 0 else \
-            steps * sums[1] / self.n_pixels / (self.n_chains / n_even + self.n_chains / n_odd)
+            steps * s_light / self.n_pixels / (self.n_chains / n_even + self.n_chains / n_odd)
         n_subpaths = k * self.n_pixels
         self.effort.observe(steps, sums[0] / self.n_pixels, v_p_times_n, self.radius ** 2,
                             n_subpaths + 3.0 * vertices, segments + rays, camera_paths=k, deposits=merges)
         if self.camera_paths_auto:
             self.camera_paths = self.effort.next_camera_paths(steps, self.max_camera_paths)
+        if n_odd > 0 and min(uniform_halves) > 0.0:
+            self._update_uniform_weight(s_uniform, s_chains, s_product)
+
+    def _update_uniform_weight(self, s_uniform: float, s_chains: float, s_product: float):
+        """beta for the next pass: the share of the uniform proposals' estimate U in the light
+        side beta U + (1 - beta) C that minimises its variance, from the sums over every pass
+        so far of the even-odd differences (4x each estimate's variance, and their
+        covariance): beta = (V_C - Cov) / (V_U + V_C - 2 Cov), clamped to [0, 1]. Chosen
+        before the pass it weights, so the weight does not depend on that pass's samples.
+        Where light subpaths rarely contribute U is noisy and beta goes to 0 (the chains'
+        estimate, Sik et al.'s); where most do, the chains' correlated records are worth less
+        than the independent proposals they started from, and beta rises (docs/mbe.md,
+        "The uniform proposals' estimate")."""
+        self.uniform_weight_sums = UNIFORM_WEIGHT_MEMORY * self.uniform_weight_sums + (s_uniform, s_chains, s_product)
+        if not self.uniform_weight_auto:
+            return
+        beta = least_variance_share(*self.uniform_weight_sums)
+        if beta is not None:
+            self.uniform_weight = beta
+        if self.large_step > 0.0:
+            # Steps follow the weight: where the uniform proposals' estimate carries a larger
+            # share than they have of the steps, they get that share (at least --large-step).
+            self.pool.large_step = float(min(max(self.large_step, self.uniform_weight), MAX_LARGE_STEP))
 
     @ti.kernel
-    def _effort_sums(self, full0: ti.f64, full1: ti.f64, even0: ti.f64, even1: ti.f64, odd0: ti.f64,
-                     odd1: ti.f64, relative: ti.i32, samples: ti.i32) -> ti.types.vector(2, ti.f64):
-        """Before the light frames join the frame: the sum over pixels of (this iteration's
-        estimate - the last one's)^2 and of (t_even - t_odd)^2, in luminance, in one fixed
-        order (a serial loop) so that K, and so the image, does not depend on thread timing.
+    def _effort_sums(self, full0: ti.f64, full1: ti.f64, full_u: ti.f64, even0: ti.f64, even1: ti.f64,
+                     even_u: ti.f64, odd0: ti.f64, odd1: ti.f64, odd_u: ti.f64, relative: ti.i32,
+                     samples: ti.i32) -> ti.types.vector(4, ti.f64):
+        """Before the light frames join the frame: the sums over pixels of (this iteration's
+        estimate - the last one's)^2, of (t_even - t_odd)^2 for the chains and for the uniform
+        proposals, and of the product of the two differences, in luminance, in one fixed
+        order (a serial loop) so that K and beta, and so the image, do not depend on thread
+        timing.
         relative (--balance relmse): each pixel weighted by 1 / (m^2 + eps), m its running
         mean over `samples` iterations, eps = (0.1 x the image's mean m)^2 (converge's relMSE)."""
         w = ti.static(self.dscene.width)
         y_weights = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
-        spread, halves = ti.f64(0.0), ti.f64(0.0)
+        spread, halves, halves_u, product = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
         inv_samples = 1.0 / ti.cast(ti.max(samples, 1), ti.f64)
         mean_all = ti.f64(0.0)
         ti.loop_config(serialize=True)
@@ -403,8 +484,10 @@ class Mbe(Vcm):
             f0o = ti.cast(self.light_frame[1, y, x], ti.f64)
             f1e = ti.cast(self.light_frame[2, y, x], ti.f64)
             f1o = ti.cast(self.light_frame[3, y, x], ti.f64)
+            ue = ti.cast(self.uniform_frame[0, y, x], ti.f64)
+            uo = ti.cast(self.uniform_frame[1, y, x], ti.f64)
             e = (ti.cast(self.film.frame[y, x], ti.f64) * ti.static(self.film.unit) + (f0e + f0o) * full0
-                 + (f1e + f1o) * full1).dot(y_weights)
+                 + (f1e + f1o) * full1 + (ue + uo) * full_u).dot(y_weights)
             weight = ti.f64(1.0)
             if relative and samples > 0:
                 m = self.film.film.sum[y, x].dot(y_weights) * inv_samples
@@ -413,8 +496,11 @@ class Mbe(Vcm):
             spread += weight * d * d
             self.last_estimate[i] = e
             h = (f0e * even0 + f1e * even1 - f0o * odd0 - f1o * odd1).dot(y_weights)
+            hu = (ue * even_u - uo * odd_u).dot(y_weights)
             halves += weight * h * h
-        return ti.Vector([spread, halves], ti.f64)
+            halves_u += weight * hu * hu
+            product += weight * h * hu
+        return ti.Vector([spread, halves, halves_u, product], ti.f64)
 
     @ti.kernel
     def _set_iteration_constants(self, eta: ti.f32, inv_eta: ti.f32, pixels: ti.f32, kappa: ti.f32, r2: ti.f32,
@@ -445,6 +531,7 @@ class Mbe(Vcm):
         """Trace the light subpath `key` names against the stored camera subpaths. PROBE:
         its targets (T_V, T_C); DEPOSIT: splat F(u) with weight w[l] recorded at level l."""
         self.visit_mode[vkey] = mode
+        self.uniform_probe[vkey] = 1 if mode == PROBE and key[3] % MODE_BITS == UNIFORM_MODE else 0
         n_subpaths = self.n_subpaths[None]
         self.pair[vkey] = ti.min(ti.cast(source.get(key, ti.static(self.pair_dim)) * n_subpaths, ti.i32),
                                  n_subpaths - 1)
@@ -512,7 +599,11 @@ class Mbe(Vcm):
     def _emit(self, vkey, y: ti.i32, x: ti.i32, contrib):
         """One entry of the splat list: summed for the targets and kept, or deposited."""
         if self.visit_mode[vkey] == PROBE:
-            self.probe_sum[vkey] += self.film.fixed(contrib)
+            v = self.film.fixed(contrib)
+            self.probe_sum[vkey] += v
+            if self.uniform_probe[vkey]:
+                for k in ti.static(range(3)):
+                    ti.atomic_add(self.uniform_frame[vkey % 2, y, x][k], v[k])
             lst = self._probe_list(vkey)
             k = self.list_count[lst]
             if k < SPLAT_LIST_CAPACITY:
@@ -620,16 +711,20 @@ class Mbe(Vcm):
         return used
 
     @ti.kernel
-    def _add_light_frames(self, s0: ti.f64, s1: ti.f64):
-        """End of the pass: the chains' splats, at their levels' final scales, join the frame."""
+    def _add_light_frames(self, s0: ti.f64, s1: ti.f64, su: ti.f64):
+        """End of the pass: the chains' splats, at their levels' final scales, and the uniform
+        proposals' (su) join the frame."""
         for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
             # each level's two halves summed exactly (fixed point) before the scale
             total = ti.cast(self.light_frame[0, y, x] + self.light_frame[1, y, x], ti.f64) * s0 \
-                + ti.cast(self.light_frame[2, y, x] + self.light_frame[3, y, x], ti.f64) * s1
+                + ti.cast(self.light_frame[2, y, x] + self.light_frame[3, y, x], ti.f64) * s1 \
+                + ti.cast(self.uniform_frame[0, y, x] + self.uniform_frame[1, y, x], ti.f64) * su
             for k in ti.static(range(3)):
                 ti.atomic_add(self.film.frame[y, x][k], ti.cast(total[k] + 0.5, ti.i64))
             for frame in ti.static(range(4)):
                 self.light_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
+            for frame in ti.static(range(2)):
+                self.uniform_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
 
     # -- results ----------------------------------------------------------------------
     def progress_fields(self) -> str:
@@ -637,7 +732,8 @@ class Mbe(Vcm):
         acc = t[:, ACCEPTED] / np.maximum(t[:, MUTATIONS], 1)
         swap = t[0, SWAPS_ACCEPTED] / max(int(t[0, SWAPS_TRIED]), 1)
         return (f"radius {self.radius:.3g}  b_V {self.b_last[0]:.2g}  acc {acc[0]:.2f}/{acc[1]:.2f}  "
-                f"swap {swap:.2f}" + (f"  K {self.camera_paths}" if self.camera_paths_auto else ""))
+                f"swap {swap:.2f}  beta {self.uniform_weight:.2f}" +
+                (f"  K {self.camera_paths}" if self.camera_paths_auto else ""))
 
     def method_stats(self):
         t = self.totals
@@ -662,6 +758,7 @@ class Mbe(Vcm):
             "light_paths_per_iteration": self.n_light, "chain_steps_last_iteration": self.steps_last,
             "camera_paths_per_pixel": self.camera_paths,
             "camera_paths_per_pixel_auto": self.camera_paths_auto,
+            "uniform_weight": self.uniform_weight, "uniform_weight_auto": self.uniform_weight_auto,
             "effort": self.effort.stats(),
             "chains": self.n_chains,
             "mis": "modified" if self.modified_mis else "plain",
