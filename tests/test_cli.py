@@ -90,6 +90,10 @@ BAD = {
                                              "--chains", "1"], "--camera-paths auto needs --chains 2 or more"),
     "mbe camera paths too many": (["render", *SMALL, "--method", "mbe", "--camera-paths", "65"],
                                   "--camera-paths for mbe must be 'auto' or a number"),
+    "mbe uniform weight above one": (["render", *SMALL, "--method", "mbe", "--uniform-weight", "2"],
+                                     "--uniform-weight must be 'auto' or a number in [0, 1]"),
+    "uniform weight for vcm": (["render", *SMALL, "--method", "vcm", "--uniform-weight", "0.5"],
+                               "does not take --uniform-weight"),
 }
 
 

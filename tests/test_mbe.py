@@ -82,6 +82,29 @@ def test_uniform_proposals_estimate_keeps_the_furnace(write_scene, uniform_weigh
     assert r.stats["uniform_weight"] > 0.5 if uniform_weight == "auto" else r.stats["uniform_weight"] == 1.0
 
 
+def test_uniform_weight_follows_where_light_subpaths_contribute():
+    """beta, the uniform proposals' share of the light side, is chosen from the measured
+    variances: high where most light subpaths contribute (mesh-room, b_V 0.65: the chains'
+    correlated records are worth less than the independent proposals they start from;
+    measured 0.80-0.85 over seeds 1-3), low where few do (the attic room, b_V 0.05-0.15:
+    measured 0.20-0.26), at 32x32 after 60 iterations. The large-step probability follows
+    beta upward and stays at --large-step (0.3) below it."""
+    chosen = {}
+    for name in ("mesh-room", "attic-slit"):
+        p = prepare(load_scene(SCENES / name / "scene.xml", {"res": 32}), method="mbe", seed=1)
+        try:
+            for _ in range(60):
+                p.method.iterate()
+            chosen[name] = (p.method.uniform_weight, p.method.pool.large_step)
+        finally:
+            p.release()
+    print("beta, large-step probability after 60 iterations", chosen)
+    beta, large_step = chosen["mesh-room"]
+    assert beta > 0.6 and large_step == pytest.approx(beta)
+    beta, large_step = chosen["attic-slit"]
+    assert beta < 0.4 and large_step == pytest.approx(0.3)
+
+
 def _effort_estimates(scene, iterations, seed, **options):
     """(V_c, V_p) of mbe's effort balance after `iterations` at a fixed radius (alpha 1)."""
     return shares_after(prepare(scene, method="mbe", seed=seed, options={"alpha": 1.0, **options}), iterations)
@@ -257,3 +280,24 @@ def test_plain_weights_agree_with_modified_and_with_vcm():
     # chains' light subpaths are shared), so less error at equal iterations (measured 0.033
     # against 0.018 at 300 iterations, docs/mbe.md).
     assert rmse["plain, 4 camera subpaths"] < 0.85 * rmse["plain"]
+
+
+@pytest.mark.convergence
+def test_where_most_light_subpaths_contribute_mbe_keeps_to_vcm():
+    """mesh-room (b_V 0.65) at 64x64, 200 iterations: mbe's defaults within 10 % of vcm's RMSE
+    at equal iterations (measured 1.057 and 0.976 for seeds 1 and 2), where the chains'
+    estimate alone (uniform_weight 0, the estimator before 2026-12-03) is 1.13-1.17x vcm's
+    and 1.10-1.16x the defaults'."""
+    ref = read_image(REFS / "mesh-room-64.exr")
+    scene = load_scene(SCENES / "mesh-room" / "scene.xml", {"res": 64})
+    err = {}
+    for name, method, options in (("defaults", "mbe", {}), ("chains alone", "mbe", {"uniform_weight": 0.0}),
+                                  ("vcm", "vcm", {})):
+        p = prepare(scene, method=method, seed=1, options=options)
+        image = run(p, Budget(iterations=200), quiet=True).image
+        p.release()
+        err[name] = float(np.sqrt(np.mean((luminance(image) - luminance(ref)) ** 2)))
+    print("RMSE at 200 iterations", err)
+    assert err["defaults"] < 1.1 * err["vcm"]
+    assert err["defaults"] < 0.95 * err["chains alone"]
+
