@@ -112,15 +112,25 @@ class SplatFilm:
     def splat(self, y: ti.i32, x: ti.i32, rgb):
         self.add_fixed(y, x, self.fixed(rgb))
 
+    @ti.func
+    def flush_pixel(self, y: ti.i32, x: ti.i32):
+        """The pixel's frame joins the film and is cleared (a method's own end-of-iteration
+        kernel may call this for every pixel, then count_flushed(), to save a launch)."""
+        self.film.add(y, x, ti.cast(self.frame[y, x], ti.f64) * ti.f64(self.unit))
+        self.frame[y, x] = ti.Vector([0, 0, 0], ti.i64)
+
     @ti.kernel
     def _flush(self):
         for y, x in ti.ndrange(self.height, self.width):
-            self.film.add(y, x, ti.cast(self.frame[y, x], ti.f64) * ti.f64(self.unit))
-            self.frame[y, x] = ti.Vector([0, 0, 0], ti.i64)
+            self.flush_pixel(y, x)
 
     def flush(self):
         """End of an iteration: its frame becomes one sample of every pixel."""
         self._flush()
+        self.count_flushed()
+
+    def count_flushed(self):
+        """Every pixel's frame was flushed (flush_pixel): one more sample per pixel."""
         self.film.samples_per_pixel += 1
 
     def clear_frame(self):

@@ -298,9 +298,7 @@ class ChainPool:
                                      self.reservoir_sum, self.reservoir_hits, self.adopted) +
                     ((self.block_counters,) if self.n_blocks > 1 else ()))
         with _chain_kernel_compilation():
-            self._run(model, 0, 0, 0, 0.0, 0.5, self.large_step, PROBE)
-        if self.warm_start:
-            self._warm_start()
+            self._run(model, 0, 0, 0, 0.0, 0.5, self.large_step, PROBE)     # and the warm start
 
     def run(self, model, seed: int, iteration: int, steps: int):
         """`steps` chain steps in all, spread over the ladders, then deposit every pending weight.
@@ -397,18 +395,21 @@ class ChainPool:
                             self.seeding_phase[c] = 1 if i < seeding_steps else 0
                         self.recording[c] = 1 if i >= burn else 0
                     self._step(model, c, state, task, large_step)
+                if ti.static(self.warm_start):
+                    if task == PROBE:
+                        self._warm_start(c)     # in this launch: each launch costs host time
 
-    @ti.kernel
-    def _warm_start(self):
-        """Each upper level whose stored state still has a non-zero target under the new one
-        starts from it: fresh, its reservoir spent."""
-        for c in range(self.n_chains):
-            for level in ti.static(range(1, self.n_levels)):
-                s = self.level_slot[c, level]
-                t = self.T[s]
-                if t[level] > 0.0:
-                    self.fresh[s] = 1
-                    self.reservoir_hits[c, level] = -1 << 30
+    @ti.func
+    def _warm_start(self, c):
+        """After the re-evaluation (PROBE): each upper level of ladder c whose stored state
+        still has a non-zero target under the new one starts from it: fresh, its reservoir
+        spent."""
+        for level in ti.static(range(1, self.n_levels)):
+            s = self.level_slot[c, level]
+            t = self.T[s]
+            if t[level] > 0.0:
+                self.fresh[s] = 1
+                self.reservoir_hits[c, level] = -1 << 30
 
     # -- one step of one ladder ------------------------------------------------------------
     @ti.func

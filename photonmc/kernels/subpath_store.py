@@ -62,6 +62,11 @@ class SubpathVertices:
 
     @ti.kernel
     def clear(self, n_paths: ti.i32):
+        self.clear_paths(n_paths)
+
+    @ti.func
+    def clear_paths(self, n_paths: ti.i32):
+        """Empty the store for paths [0, n_paths) (a caller's kernel may do this in its own launch)."""
         self.count[None] = 0
         for i in range(n_paths):
             self.path_count[i] = 0
@@ -76,12 +81,13 @@ class SubpathVertices:
                 self.path_start[0] = 0
             else:
                 self.path_start[i] = self.path_start[i - 1] + self.path_count[i - 1]
+        # Only the slots in use: the grids read the first `count` only, and mbe's store is
+        # sized for the most camera subpaths per pixel its balance may pick (a loop over the
+        # whole capacity was half of this kernel's time at 64x64).
         n = self.count[None]
-        for slot in range(self.capacity):
-            self.valid[slot] = 0
-            if slot < n:
-                self.order[self.path_start[self.path[slot]] + self.index[slot]] = slot
-                self.valid[slot] = 1
+        for slot in range(n):
+            self.order[self.path_start[self.path[slot]] + self.index[slot]] = slot
+            self.valid[slot] = 1
 
     def finish(self, n_paths: int):
         """After the light pass: path order, and which slots hold a vertex (for the grid)."""

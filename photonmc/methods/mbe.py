@@ -344,10 +344,9 @@ class Mbe(Vcm):
         kappa = (float(self.b_mis_host[0]) if self.modified_mis else 1.0) * ratio * k
         # A pixel's estimate is the mean over its K subpaths: merging at each is 1/K of it.
         vm_normalization = 1.0 / (PI * self.radius ** 2 * steps * k)
-        self._set_iteration_constants(eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2, n_subpaths,
-                                      vm_normalization, ratio, 1.0 / steps)
+        self._begin_iteration(self.store, eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2, n_subpaths,
+                              vm_normalization, ratio, 1.0 / steps)
         while True:
-            self.store.clear(n_subpaths)
             # Compiled without Taichi's whole-kernel CSE, like the chain kernel (kernels/mcmc.py):
             # 0.6-1 s less to the first image, about 0.5 % of an iteration (docs/performance.md).
             with runtime.advanced_optimization(False):
@@ -358,6 +357,7 @@ class Mbe(Vcm):
             self.film.clear_frame()        # counter-based random numbers: the redo is the same pass
             self._allocate_store(int(n * 1.25) + 1024)
             self.store_grown += 1
+            self.store.clear(n_subpaths)
         self.vertices_last = n
         self.vertices_sum += n
         self.store.finish(n_subpaths)
@@ -368,16 +368,12 @@ class Mbe(Vcm):
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * steps / np.maximum(recorded, 1e-300), 0.0)
-        uniform_per_chain = tallies["uniform_per_chain"]
-        n_uniform = float(uniform_per_chain.sum())
         # The light side: beta x the uniform proposals' estimate + (1 - beta) x the chains'.
-        beta = self.uniform_weight if n_uniform > 0 else 0.0
-        uniform_scale = steps / n_uniform if n_uniform > 0 else 0.0
-        self._observe_effort(steps, k, n, b, tallies["recorded_per_chain"], scale, uniform_per_chain, beta,
-                             tallies["extra"][0])
-        self._add_light_frames(*((1.0 - beta) * scale / self.pre_scale_host.astype(np.float64)),
-                               beta * uniform_scale)
-        self.film.flush()
+        frame_scales, sum_scales, uniform_halves, beta = self._pass_scales(steps, b, scale, tallies)
+        sums = self._end_pass(*frame_scales, *sum_scales, int(self.relative_balance),
+                              max(self.film.film.samples_per_pixel, 0))
+        self.film.count_flushed()
+        self._observe_effort(steps, k, n, sums, beta, uniform_halves, tallies["extra"][0])
         uploads = []
         if (b > 0).all():
             self.b_mis_host = b.astype(np.float32)
@@ -393,28 +389,38 @@ class Mbe(Vcm):
             self.passes_with_b += 1
         self.work_done += steps + n_subpaths
 
-    def _observe_effort(self, steps: int, k: int, vertices: int, b, recorded_per_chain, scale, uniform_per_chain,
-                        beta: float, light_counters):
-        """The effort balance's view of this iteration (methods/effort.py), and with
-        --camera-paths auto the next pass's K; then the uniform proposals' weight beta for the
-        next pass. The light side's variance comes from the even and odd ladders
-        (independent; each half's estimate scaled by its own recorded weight, or uniform
-        proposals), the camera side's from consecutive iterations; work is counted: camera
-        rays (one per subpath, an extension and a shadow ray per stored vertex) and one grid
-        entry per vertex, against light segments and shadow rays per chain step, with the
-        merge candidates, which grow with K at a fixed pass length, as camera work."""
+    def _pass_scales(self, steps: int, b, scale, tallies):
+        """The pass's scales: (the frame's: chain levels 0 and 1 and the uniform proposals'),
+        (the effort sums': the same in radiance, then each ladder parity's half alone, for
+        levels 0, 1 and the uniform proposals), the halves' uniform scales, beta. Each half is
+        scaled by its own recorded weight (or its own uniform proposals), so that it is an
+        estimate of the whole light side by itself."""
+        uniform_per_chain = tallies["uniform_per_chain"]
+        n_uniform = float(uniform_per_chain.sum())
+        beta = self.uniform_weight if n_uniform > 0 else 0.0
+        uniform_scale = steps / n_uniform if n_uniform > 0 else 0.0
+        frame = (*((1.0 - beta) * scale / self.pre_scale_host.astype(np.float64)), beta * uniform_scale)
         unit = self.film.unit / self.pre_scale_host.astype(np.float64)
         full = (1.0 - beta) * scale * unit
         halves, uniform_halves = [], []
         for parity in (0, 1):
-            w = recorded_per_chain[parity::2].sum(axis=0)
+            w = tallies["recorded_per_chain"][parity::2].sum(axis=0)
             halves.append(np.where(w > 0, b * steps / np.maximum(w, 1e-300), 0.0) * unit)
             n_u = float(uniform_per_chain[parity::2].sum())
             uniform_halves.append(steps / n_u * self.film.unit if n_u > 0 else 0.0)
-        n_uniform = float(uniform_per_chain.sum())
-        full_uniform = beta * steps / n_uniform * self.film.unit if n_uniform > 0 else 0.0
-        sums = self._effort_sums(*full, full_uniform, *halves[0], uniform_halves[0], *halves[1], uniform_halves[1],
-                                 int(self.relative_balance), max(self.film.film.samples_per_pixel, 0))
+        full_uniform = beta * uniform_scale * self.film.unit
+        sums = (*full, full_uniform, *halves[0], uniform_halves[0], *halves[1], uniform_halves[1])
+        return frame, sums, uniform_halves, beta
+
+    def _observe_effort(self, steps: int, k: int, vertices: int, sums, beta: float, uniform_halves, light_counters):
+        """The effort balance's view of this iteration (methods/effort.py), and with
+        --camera-paths auto the next pass's K; then the uniform proposals' weight beta for the
+        next pass. The light side's variance comes from the even and odd ladders
+        (independent), the camera side's from consecutive iterations (sums from _end_pass);
+        work is counted: camera rays (one per subpath, an extension and a shadow ray per
+        stored vertex) and one grid entry per vertex, against light segments and shadow rays
+        per chain step, with the merge candidates, which grow with K at a fixed pass length,
+        as camera work."""
         # Squared even-odd differences summed over pixels: the chains', the uniform
         # proposals', their product; the light side's is that of the combination.
         s_chains, s_uniform, s_product = float(sums[1]), float(sums[2]), float(sums[3])
@@ -457,10 +463,12 @@ class Mbe(Vcm):
             self.pool.large_step = float(min(max(self.large_step, self.uniform_weight), MAX_LARGE_STEP))
 
     @ti.kernel
-    def _effort_sums(self, full0: ti.f64, full1: ti.f64, full_u: ti.f64, even0: ti.f64, even1: ti.f64,
-                     even_u: ti.f64, odd0: ti.f64, odd1: ti.f64, odd_u: ti.f64, relative: ti.i32,
-                     samples: ti.i32) -> ti.types.vector(4, ti.f64):
-        """Before the light frames join the frame: the sums over pixels of (this iteration's
+    def _end_pass(self, s0: ti.f64, s1: ti.f64, su: ti.f64, full0: ti.f64, full1: ti.f64, full_u: ti.f64,
+                  even0: ti.f64, even1: ti.f64, even_u: ti.f64, odd0: ti.f64, odd1: ti.f64, odd_u: ti.f64,
+                  relative: ti.i32, samples: ti.i32) -> ti.types.vector(4, ti.f64):
+        """The pass's end in one launch (its top-level loops run one after the other; each
+        launch costs 0.1-0.3 ms on the host, a few per cent of a 64x64 iteration). First the
+        effort sums, before the light frames join the frame: the sums over pixels of (this iteration's
         estimate - the last one's)^2, of (t_even - t_odd)^2 for the chains and for the uniform
         proposals, and of the product of the two differences, in luminance, in one fixed
         order (a serial loop) so that K and beta, and so the image, do not depend on thread
@@ -500,13 +508,30 @@ class Mbe(Vcm):
             halves += weight * h * h
             halves_u += weight * hu * hu
             product += weight * h * hu
+        # Then the chains' splats, at their levels' final scales (s0, s1), and the uniform
+        # proposals' (su) join the frame, which joins the film as one sample of every pixel.
+        for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
+            # each level's two halves summed exactly (fixed point) before the scale
+            total = ti.cast(self.light_frame[0, y, x] + self.light_frame[1, y, x], ti.f64) * s0 \
+                + ti.cast(self.light_frame[2, y, x] + self.light_frame[3, y, x], ti.f64) * s1 \
+                + ti.cast(self.uniform_frame[0, y, x] + self.uniform_frame[1, y, x], ti.f64) * su
+            for k in ti.static(range(3)):
+                ti.atomic_add(self.film.frame[y, x][k], ti.cast(total[k] + 0.5, ti.i64))
+            for frame in ti.static(range(4)):
+                self.light_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
+            for frame in ti.static(range(2)):
+                self.uniform_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
+            self.film.flush_pixel(y, x)
         return ti.Vector([spread, halves, halves_u, product], ti.f64)
 
     @ti.kernel
-    def _set_iteration_constants(self, eta: ti.f32, inv_eta: ti.f32, pixels: ti.f32, kappa: ti.f32, r2: ti.f32,
-                                 n_subpaths: ti.i32, vm_normalization: ti.f32, pairing: ti.f32, inv_steps: ti.f32):
-        """The iteration's MIS constants, subpath count and normalisations in one launch (each
-        field write from Python is a kernel launch of its own)."""
+    def _begin_iteration(self, store: ti.template(), eta: ti.f32, inv_eta: ti.f32, pixels: ti.f32, kappa: ti.f32,
+                         r2: ti.f32, n_subpaths: ti.i32, vm_normalization: ti.f32, pairing: ti.f32,
+                         inv_steps: ti.f32):
+        """The iteration's MIS constants, subpath count and normalisations, and the emptied
+        camera-vertex store, in one launch (each field write from Python, and each launch,
+        costs host time)."""
+        store.clear_paths(n_subpaths)
         self.consts[None] = ti.Vector([eta, inv_eta, pixels, kappa, r2])
         self.n_subpaths[None] = n_subpaths
         self._norms[None] = ti.Vector([vm_normalization, pairing, inv_steps])
@@ -709,22 +734,6 @@ class Mbe(Vcm):
         ti.atomic_add(self.light_counters[2], rays)
         ti.atomic_add(self.light_counters[3], candidates)
         return used
-
-    @ti.kernel
-    def _add_light_frames(self, s0: ti.f64, s1: ti.f64, su: ti.f64):
-        """End of the pass: the chains' splats, at their levels' final scales, and the uniform
-        proposals' (su) join the frame."""
-        for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
-            # each level's two halves summed exactly (fixed point) before the scale
-            total = ti.cast(self.light_frame[0, y, x] + self.light_frame[1, y, x], ti.f64) * s0 \
-                + ti.cast(self.light_frame[2, y, x] + self.light_frame[3, y, x], ti.f64) * s1 \
-                + ti.cast(self.uniform_frame[0, y, x] + self.uniform_frame[1, y, x], ti.f64) * su
-            for k in ti.static(range(3)):
-                ti.atomic_add(self.film.frame[y, x][k], ti.cast(total[k] + 0.5, ti.i64))
-            for frame in ti.static(range(4)):
-                self.light_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
-            for frame in ti.static(range(2)):
-                self.uniform_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
 
     # -- results ----------------------------------------------------------------------
     def progress_fields(self) -> str:
