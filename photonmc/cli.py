@@ -153,11 +153,12 @@ def _add_vcm_options(parser):
                         "(docs/mbe.md). spatial-tf: its upper levels likewise (default off; measured in "
                         "docs/guiding.md)")
     g.add_argument("--uniform-weight", metavar="auto|B",
-                   help="mbe: the share of the light side carried by the uniform proposals' own estimate "
-                        "(plain Monte Carlo) against the chains': auto (default) picks the share of least "
-                        "variance from the even and odd ladders and gives the uniform proposals at least that "
-                        "share of the steps; 0: the chains' estimate alone; 1: the uniform proposals' alone "
-                        "(docs/mbe.md)")
+                   help="mbe, visibility, spatial-tf: the share carried by the uniform proposals' own "
+                        "estimate (plain Monte Carlo: vcm's light subpaths, sppm's photons) against the "
+                        "chains': auto (default) picks the share of least variance from the even and odd "
+                        "ladders, and gives the uniform proposals at least that share of mbe's steps (the "
+                        "guided methods mutate with probability 1 - share); 0: the chains' estimate alone; "
+                        "1: the uniform proposals' alone (docs/mbe.md, docs/guiding.md)")
     g.add_argument("--balance", choices=["mse", "relmse"],
                    help="mbe: what the effort balance behind --camera-paths auto minimises: the image's MSE "
                         "(default) or its relative MSE, each pixel's error weighted by 1 / (its running mean^2 "

@@ -25,9 +25,12 @@ def render(scene, method, iterations, seed=0, max_depth=None, **options):
 @pytest.mark.parametrize("method,options", [("visibility", {}), ("visibility", {"suffix_mutation": 0.5}),
                                             ("visibility", {"mutation": "blocks"}),
                                             ("spatial-tf", {}), ("spatial-tf", {"expected_values": True}),
-                                            ("spatial-tf", {"warm_start": True, "ladder_burn_in": 0.25})],
+                                            ("spatial-tf", {"warm_start": True, "ladder_burn_in": 0.25}),
+                                            ("visibility", {"uniform_weight": 1.0}),
+                                            ("spatial-tf", {"uniform_weight": 1.0})],
                          ids=["visibility", "visibility-suffix-moves", "visibility-block-moves", "spatial-tf",
-                              "spatial-tf-expected-values", "spatial-tf-warm-start"])
+                              "spatial-tf-expected-values", "spatial-tf-warm-start", "visibility-uniform-photons",
+                              "spatial-tf-uniform-photons"])
 def test_sphere_furnace(write_scene, method, options):
     """Inside an emitting diffuse sphere the answer is analytic and SPPM's density estimate has
     no blur bias: the Markov-chain estimators must hit it within noise. (Most photon paths are
@@ -140,7 +143,8 @@ def test_almost_nothing_visible_still_renders(write_scene, method):
 
 @pytest.mark.parametrize("options,message", [
     ({"chains": 0}, "--chains"), ({"target_acceptance": 1.5}, "--target-acceptance"),
-    ({"proposal_failures": "maybe"}, "--proposal-failures"),
+    ({"proposal_failures": "maybe"}, "--proposal-failures"), ({"uniform_weight": 2}, "--uniform-weight"),
+    ({"uniform_weight": "half"}, "--uniform-weight"),
 ])
 def test_bad_options(options, message):
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})
@@ -167,6 +171,8 @@ def test_statistics_reported(write_scene, method):
     # Level 0's chained and uniform estimates are one and the same: the visible fraction.
     assert s["levels"][0]["normalisation_mean"] == pytest.approx(s["levels"][0]["normalisation_uniform_mean"], rel=1e-12)
     assert 0 < s["uniform_visible_fraction"] <= 1 and s["photon_paths_traced"] > s["photons"]
+    assert 0.0 <= s["uniform_weight"] <= 1.0 and s["uniform_weight_auto"]
+    assert 0.05 <= s["mutation_probability"] <= 1.0
     if n_levels > 1:
         assert set(s["swap_acceptance"]) == {"visibility<->inverse-area", "inverse-area<->spatial"}
 

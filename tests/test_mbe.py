@@ -95,7 +95,7 @@ def test_uniform_weight_follows_where_light_subpaths_contribute():
         try:
             for _ in range(60):
                 p.method.iterate()
-            chosen[name] = (p.method.uniform_weight, p.method.pool.large_step)
+            chosen[name] = (p.method.beta.value, p.method.pool.large_step)
         finally:
             p.release()
     print("beta, large-step probability after 60 iterations", chosen)

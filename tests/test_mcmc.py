@@ -58,6 +58,7 @@ class ToyModel:
         self.chains = chains
         f = FieldGroup("toy-model")
         self.hist = f.scalar(ti.f64, (levels, GROUPS, BINS, BINS))
+        self.uniform_hist = f.scalar(ti.f64, (GROUPS, BINS, BINS))     # uniform_estimate's weights
         f.finalize()
         self.fields = f
 
@@ -76,6 +77,8 @@ class ToyModel:
             by = ti.min(ti.cast(y * BINS, ti.i32), BINS - 1)
             for k in ti.static(range(self.levels)):
                 self.hist[k, g, bx, by] += ti.cast(w[k], ti.f64)
+            if ti.static(w.n > self.levels):
+                self.uniform_hist[g, bx, by] += ti.cast(w[self.levels], ti.f64)
         return out, 2
 
 
@@ -91,24 +94,31 @@ def exact_bins(kind, levels, shift=0):
 
 def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="strip", drop=False, ev=False,
             adapt=True, theta=None, seed=3, target_acceptance=0.234, burn_in=0.0, seeding="copy", bootstrap=0.125,
-            shift=0, large_step=0.0, suffix_mutation=0.0, block_starts=(), base_records_in_burn_in=False):
+            shift=0, large_step=0.0, suffix_mutation=0.0, block_starts=(), base_records_in_burn_in=False,
+            mutation_probability=1.0, uniform_estimate=False, out=None):
     model = ToyModel(levels, chains, kind, shift)
     pool = ChainPool(chains, levels, 2, drop_failures=drop, expected_values=ev, burn_in=burn_in,
                      binary_base=shift == 0, seeding=seeding, bootstrap=bootstrap, large_step=large_step,
                      suffix_mutation=suffix_mutation, suffix_starts=(1,), block_starts=block_starts,
-                     base_records_in_burn_in=base_records_in_burn_in)
+                     base_records_in_burn_in=base_records_in_burn_in, uniform_estimate=uniform_estimate)
+    pool.mutation_probability = mutation_probability
     if theta is not None:
         pool.set_theta(theta)
     b_sum = np.zeros(levels)
     last = None
+    sum_uniform = 0
     for it in range(passes):
         pool.begin_pass(model)
         pool.run(model, seed, it, chains * steps_per_chain)
         last = pool.tallies()
+        sum_uniform += int(last["counters"][0, 2])
         b_sum += pool.normalisations(last)
         if adapt:
             pool.adapt(last, target_acceptance)
     hist = model.hist.to_numpy()
+    if out is not None:       # what else the caller asked for
+        out["uniform_hist"] = model.uniform_hist.to_numpy()
+        out["uniform_proposals"] = sum_uniform
     theta = pool.theta.to_numpy() if not block_starts else pool.block_theta.to_numpy()
     model.fields.release()
     pool.release()
@@ -263,6 +273,36 @@ def test_one_move_per_step_keeps_every_target(levels):
     c = last["counters"]
     uniform_share = c[0, 2] / (GROUPS * 16 * 800)      # uniform proposals per step, last pass
     assert abs(uniform_share - 0.3) < 0.005
+
+
+@pytest.mark.parametrize("ev", [False, True], ids=["splat-states", "expected-values"])
+def test_skipped_mutations_keep_every_target_and_uniform_weights_count_the_uniform_proposals(ev):
+    """The guided photon methods' --uniform-weight machinery (docs/guiding.md): mutations
+    made with probability 0.3 only (a skipped one records the state again, a lazy kernel),
+    and each state taken from a visible uniform proposal carrying one more pending weight.
+    Every level still samples its target, the normalisations hold, theta's statistics
+    count the mutations made (0.3 of the steps whose uniform proposal was invisible, at
+    level 0), and the uniform weights deposited are the visible uniform proposals, binned:
+    a multinomial sample of the support, checked against its exact bins."""
+    out = {}
+    hist, b, last, _ = run_toy(3, ev=ev, mutation_probability=0.3, uniform_estimate=True, out=out)
+    assert_every_level_samples_its_target(hist, b, exact_bins("strip", 3))
+    c = last["counters"]
+    steps = GROUPS * 16 * 1600
+    invisible = steps - c[0, 3]          # UNIFORM_VISIBLE
+    assert abs(c[0, MUTATIONS] / invisible - 0.3) < 0.01
+    assert abs(c[1, MUTATIONS] / steps - 0.3) < 0.01
+    counts = out["uniform_hist"]                      # (GROUPS, BINS, BINS)
+    n_uniform = out["uniform_proposals"]
+    expected = exact_bins("strip", 1)[0] * n_uniform   # visible uniform proposals per bin
+    total = counts.sum(axis=0)
+    inside = expected > 0
+    assert (total[~inside] == 0).all()
+    chi2 = float((((total - expected) ** 2)[inside] / expected[inside]).sum())
+    print(f"uniform weights: chi2 {chi2:.1f} on {inside.sum()} bins, {total.sum():.0f} of {n_uniform}")
+    assert chi2 < sps.chi2.ppf(0.999, inside.sum())
+    with pytest.raises(ValueError, match="binary level 0"):
+        ChainPool(4, 1, 2, binary_base=False, seeding="resample", uniform_estimate=True)
 
 
 @pytest.mark.parametrize("ev", [False, True], ids=["splat-states", "expected-values"])

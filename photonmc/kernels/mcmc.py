@@ -172,8 +172,21 @@ class ChainPool:
                  expected_values: bool = False, burn_in: float = 0.0, binary_base: bool = True,
                  seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8, large_step: float = 0.0,
                  suffix_mutation: float = 0.0, suffix_starts: tuple = (), block_starts: tuple = (),
-                 base_records_in_burn_in: bool = False, warm_start: bool = False):
+                 base_records_in_burn_in: bool = False, warm_start: bool = False, uniform_estimate: bool = False):
         self.n_chains, self.n_levels, self.dims = n_chains, n_levels, dims
+        # uniform_estimate (a binary level 0 only): a state taken from a visible uniform
+        # proposal carries one more pending weight, 1, after the levels' (index n_levels), so
+        # that the model deposits the uniform proposals as an estimate of their own
+        # (methods/guided.py; docs/guiding.md, "The uniform photons' estimate").
+        if uniform_estimate and not binary_base:
+            raise ValueError("the uniform proposals' estimate rides on a binary level 0's exchanges")
+        self.uniform_estimate = bool(uniform_estimate)
+        self.n_weights = n_levels + (1 if uniform_estimate else 0)
+        # A step's mutations are made with this probability and otherwise skipped (the state
+        # is recorded again, a lazy kernel that keeps every target): where the uniform
+        # proposals' estimate carries the pass, the chains' mutations are work it does not
+        # need. A kernel argument, so it may change between passes; 1 draws no random number.
+        self.mutation_probability = 1.0
         # Upper levels whose last state still has a non-zero target after begin_pass's
         # re-evaluation start from it (then burn in) instead of a resampled bootstrap: an
         # experiment on the start-up bias of short passes (docs/mbe.md, "Start-up").
@@ -226,7 +239,7 @@ class ChainPool:
         self.u = f.scalar(ti.f32, (self.n_slots, dims))
         self.ell = f.scalar(ti.i32, self.n_slots)
         self.T = f.vector(n_levels, ti.f32, self.n_slots)
-        self.pending = f.vector(n_levels, ti.f32, self.n_slots)
+        self.pending = f.vector(self.n_weights, ti.f32, self.n_slots)
         self.level_slot = f.scalar(ti.i32, (n_chains, n_levels))
         self.fresh = f.scalar(ti.i32, self.n_slots)      # 1: the state belongs to this pass's target
         self.theta = f.scalar(ti.f32, n_levels)
@@ -298,7 +311,7 @@ class ChainPool:
                                      self.reservoir_sum, self.reservoir_hits, self.adopted) +
                     ((self.block_counters,) if self.n_blocks > 1 else ()))
         with _chain_kernel_compilation():
-            self._run(model, 0, 0, 0, 0.0, 0.5, self.large_step, PROBE)     # and the warm start
+            self._run(model, 0, 0, 0, 0.0, 0.5, self.large_step, 1.0, PROBE)     # and the warm start
 
     def run(self, model, seed: int, iteration: int, steps: int):
         """`steps` chain steps in all, spread over the ladders, then deposit every pending weight.
@@ -313,8 +326,9 @@ class ChainPool:
         base_records_in_burn_in it records the whole pass and exchanges it with level 1 only
         after the burn-in (mbe, docs/mbe.md)."""
         with _chain_kernel_compilation():
-            self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, self.large_step, STEPS)
-            self._run(model, seed, iteration, 0, 0.0, 0.5, self.large_step, DEPOSIT)
+            self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, self.large_step,
+                      self.mutation_probability, STEPS)
+            self._run(model, seed, iteration, 0, 0.0, 0.5, self.large_step, 1.0, DEPOSIT)
 
     def tallies(self, extra=()) -> dict:
         """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l];
@@ -373,10 +387,11 @@ class ChainPool:
     # -- kernels ------------------------------------------------------------------------
     @ti.kernel
     def _run(self, model: ti.template(), seed: ti.u32, iteration: ti.u32, steps: ti.i32, burn_in: ti.f32,
-             bootstrap: ti.f32, large_step: ti.f32, task: ti.i32):
+             bootstrap: ti.f32, large_step: ti.f32, mutate: ti.f32, task: ti.i32):
         """task STEPS: `steps` chain steps spread over the ladders. PROBE / DEPOSIT: visit
         every level's stored state once (_step). large_step: this pass's probability of a
-        uniform proposal (one move per step)."""
+        uniform proposal (one move per step); mutate: the probability that a mutation is
+        made (otherwise skipped, the state recorded again)."""
         base = steps // self.n_chains
         extra = steps % self.n_chains
         for item in range(self.n_chains * ti.static(self.stride)):
@@ -394,7 +409,7 @@ class ChainPool:
                             self._seed_from_reservoirs(c, i >= seeding_steps)
                             self.seeding_phase[c] = 1 if i < seeding_steps else 0
                         self.recording[c] = 1 if i >= burn else 0
-                    self._step(model, c, state, task, large_step)
+                    self._step(model, c, state, task, large_step, mutate)
                 if ti.static(self.warm_start):
                     if task == PROBE:
                         self._warm_start(c)     # in this launch: each launch costs host time
@@ -413,7 +428,7 @@ class ChainPool:
 
     # -- one step of one ladder ------------------------------------------------------------
     @ti.func
-    def _step(self, model: ti.template(), c, state: ti.template(), task, large_step):
+    def _step(self, model: ti.template(), c, state: ti.template(), task, large_step, mutate):
         """Move 0: a uniform proposal for level 0 (the exchange with the implicit uniform chain:
         a visible one is always taken, since the swap ratio is V(u_uniform) = 1). Move 1: if it
         was invisible, a mutation of level 0. Moves 2..: a mutation of each higher level.
@@ -428,6 +443,7 @@ class ChainPool:
         call site: PROBE re-evaluates its targets (they changed), DEPOSIT deposits its pending
         weight; nothing else happens and no random number is drawn."""
         zero = ti.Vector([0.0] * self.n_levels)
+        zero_w = ti.Vector([0.0] * self.n_weights)
         visit = task != STEPS
         uniform_visible = 0
         chosen = -1
@@ -450,6 +466,10 @@ class ChainPool:
                     continue      # H&J's loop: mutate only when the uniform proposal was invisible
                 if move > 0 and not self.fresh[s]:
                     continue      # a stale state is not recorded, so mutating it is wasted work
+            skipped = 0
+            if not visit and move > 0 and mutate < 1.0:
+                if rng.next_float(state) >= mutate:
+                    skipped = 1       # no mutation: the state is recorded again below
             mode = MUTATION_MODE
             key = ti.math.uvec4(s, 0, 0, STATE_MODE)
             if not visit:
@@ -474,7 +494,7 @@ class ChainPool:
             accept = 0
             a = 0.0
             deposit_key = key
-            deposit_w = zero
+            deposit_w = zero_w
             deposit_t = zero
             if visit and task == DEPOSIT:
                 deposit_w = self.pending[s]
@@ -485,7 +505,7 @@ class ChainPool:
             for phase in range(2):
                 trace_key = key
                 trace_mode = PROBE
-                traced = phase == 0
+                traced = phase == 0 and not skipped
                 if visit:
                     trace_mode = task
                     traced = phase == 0 and ((task == PROBE and self.ell[s] > 0) or
@@ -527,10 +547,15 @@ class ChainPool:
                 if task == PROBE:
                     self.T[s] = t_new
                 else:
-                    self.pending[s] = zero
+                    self.pending[s] = zero_w
                 continue
             if accept:
                 self._store(s, key, t_new)
+                if ti.static(self.uniform_estimate):
+                    if move == 0:
+                        p = self.pending[s]
+                        p[self.n_levels] = 1.0      # one uniform photon, whatever the levels record
+                        self.pending[s] = p
                 if ti.static(hasattr(model, "adopt")):
                     model.adopt(c, s)
                     self.adopted[s] = 1
@@ -539,10 +564,10 @@ class ChainPool:
                     w_new = a
                 self._record(c, level, s, w_new)
             elif (move > 0 or ti.static(not self.binary_base or self.one_move)) and \
-                    not (ti.static(self.drop_failures) and component(t_new, level) <= 0.0):
-                # A rejected proposal repeats the current state. (A binary level 0 that rejects
-                # its uniform proposal records after the mutation that always follows.)
-                if ti.static(not self.expected_values) and component(self.T[s], level) > 0.0:
+                    (skipped or not (ti.static(self.drop_failures) and component(t_new, level) <= 0.0)):
+                # A rejected (or skipped) proposal repeats the current state. (A binary level 0
+                # that rejects its uniform proposal records after the mutation that follows.)
+                if (ti.static(not self.expected_values) or skipped) and component(self.T[s], level) > 0.0:
                     self._record(c, level, s, 1.0)
         if not visit:
             if ti.static(self.one_move):
@@ -711,4 +736,4 @@ class ChainPool:
             self.u[s, d] = self.source.get(key, d)
         self.ell[s] = self.dims
         self.T[s] = t_new
-        self.pending[s] = ti.Vector([0.0] * self.n_levels)
+        self.pending[s] = ti.Vector([0.0] * self.n_weights)

@@ -163,3 +163,45 @@ def least_variance_share(var_a: float, var_b: float, cov: float) -> float | None
         return None
     return float(min(max((var_b - cov) / denom, 0.0), 1.0))
 
+
+def uniform_weight_option(value) -> tuple[bool, float]:
+    """--uniform-weight (mbe, visibility, spatial-tf): 'auto' (the default: chosen by least
+    variance from the even and odd ladders) or a fixed share in [0, 1] of the uniform
+    proposals' own estimate (0: the chains' estimate alone; 1: the uniform proposals' alone).
+    Returns (auto, the fixed share or 0)."""
+    from ..errors import SettingsError
+    if value is None or value == "auto":
+        return True, 0.0
+    try:
+        share = float(value)
+    except (TypeError, ValueError):
+        share = float("nan")
+    if isinstance(value, bool) or not 0.0 <= share <= 1.0:
+        raise SettingsError(f"--uniform-weight must be 'auto' or a number in [0, 1], got '{value}'")
+    return False, share
+
+
+class UniformWeight:
+    """beta, the share of the uniform proposals' own estimate U in the combination
+    beta U + (1 - beta) C with the chains' estimate C (mbe's light side, the guided photon
+    methods' photon flux). Each pass reports the sums over pixels of the squared even-odd
+    ladder differences of U and of C and of their product (4x each estimate's variance, and
+    their covariance; the halves are independent); beta for the next pass is the least-
+    variance share of those sums over the passes so far, each pass forgetting MEMORY of the
+    earlier ones (so that beta follows what it steers, e.g. mbe's large-step probability).
+    Chosen before the pass it weights, it does not depend on that pass's samples: any beta
+    keeps the combination's expectation (docs/mbe.md, "The uniform proposals' estimate")."""
+    MEMORY = 0.9
+
+    def __init__(self, option):
+        self.auto, fixed = uniform_weight_option(option)
+        self.value = 0.0 if self.auto else fixed      # auto starts from the chains' estimate alone
+        self.sums = np.zeros(3)                       # U, C, U x C
+
+    def observe(self, s_uniform: float, s_chains: float, s_product: float) -> None:
+        self.sums = self.MEMORY * self.sums + (s_uniform, s_chains, s_product)
+        if self.auto:
+            beta = least_variance_share(*self.sums)
+            if beta is not None:
+                self.value = beta
+

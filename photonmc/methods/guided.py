@@ -23,6 +23,7 @@ import numpy as np
 import taichi as ti
 
 from ..errors import SettingsError
+from ..kernels.batch import upload_fields
 from ..kernels.fields import FieldGroup
 from ..kernels.mcmc import (
     ACCEPTED,
@@ -42,6 +43,7 @@ from ..kernels.mcmc import (
 )
 from ..kernels.photon import BOUNCE_DIMS, LIGHT_DIMS, dimensions, photon_segments, trace_photon
 from .clusters import HitDensityClusters
+from .effort import UniformWeight, uniform_weight_option
 from .sppm import FIXED_ONE, Sppm
 
 REGENERATIONS = 10       # visible uniform proposals each chain should see per pass
@@ -70,6 +72,8 @@ SUFFIX_BOUNCES = (2, 3, 4)
 # --mutation blocks: the light's coordinates, bounce 1's, bounce 2's and all later ones
 # perturbed one block at a time, each with its own theta (kernels/mcmc.py).
 MUTATION_BLOCKS = 4
+# --uniform-weight auto: the chains' mutations are made with probability 1 - beta, at least this.
+MIN_MUTATION = 0.05
 
 
 @ti.data_oriented
@@ -79,7 +83,14 @@ class GuidedPhotons(Sppm):
     default_iterations = 100
     OPTIONS = {**Sppm.OPTIONS, "chains": None, "target_acceptance": 0.234, "proposal_failures": "keep",
                "expected_values": False, "suffix_mutation": SUFFIX_MUTATION,
-               "mutation": "joint", "warm_start": False, "ladder_burn_in": LADDER_BURN_IN}
+               "mutation": "joint", "warm_start": False, "ladder_burn_in": LADDER_BURN_IN,
+               "uniform_weight": "auto"}
+    # Every step's uniform photon is also an estimate of its own, sppm's (an accumulator after
+    # the levels'), joined to the chains' with the least-variance weight beta; the chains'
+    # mutations are made with probability 1 - beta (at least MIN_MUTATION): where uniform
+    # photons carry the pass they are work it does not need (docs/guiding.md, "The uniform
+    # photons' estimate").
+    uniform_accumulator = True
     path_target_sum = False
     # Passes last until every chain regenerates (_steps_this_pass), so where the error is
     # camera-side they would starve the camera passes: the effort balance chooses how many
@@ -130,15 +141,16 @@ class GuidedPhotons(Sppm):
         if self.n_levels == 1 and (opts["warm_start"] or burn_in != LADDER_BURN_IN):
             raise SettingsError(f"{self.name} has one chain per ladder: --warm-start and ladder_burn_in are for "
                                 f"the upper levels of spatial-tf's ladders (and mbe's --warm-start)")
+        uniform_weight_option(opts["uniform_weight"])     # checked here, used from _reset_guided
         self.pool = ChainPool(self.n_chains, self.n_levels, dims, self.drop_failures, self.expected_values,
                               burn_in=burn_in if self.n_levels > 1 else 0.0,
                               suffix_mutation=self.suffix_mutation, suffix_starts=starts, block_starts=blocks,
-                              warm_start=bool(opts["warm_start"]))
+                              warm_start=bool(opts["warm_start"]), uniform_estimate=True)
         f = FieldGroup(f"guided-{self.name}")
         L, n, c = self.n_levels, self.n_mp, self.n_chains
         self.target_scratch = f.vector(L, ti.f32, c)
         self.visit_mode = f.scalar(ti.i32, c)
-        self.flux_weight = f.vector(L, ti.f32, c)
+        self.flux_weight = f.vector(L + 1, ti.f32, c)     # the levels', then the uniform photons'
         self.hit_weight = f.vector(L, ti.f32, c)
         self.b_mis = f.scalar(ti.f32, L)              # previous pass's normalisations, for MIS only
         self.paths_traced = f.scalar(ti.i64, ())
@@ -170,6 +182,8 @@ class GuidedPhotons(Sppm):
         self.b_sum = np.zeros(L)
         self.b_uniform_sum = np.zeros(L)
         self.passes_with_b = 0
+        self.beta = UniformWeight(self.options["uniform_weight"])
+        self.pool.mutation_probability = 1.0
 
     # -- the model interface of ChainPool -------------------------------------------------
     @ti.func
@@ -191,8 +205,9 @@ class GuidedPhotons(Sppm):
         for k in ti.static(range(self.n_levels)):
             if t[k] > 0.0:
                 denom += t[k] / self.b_mis[k]
-        fw = ti.Vector([0.0] * self.n_levels)
+        fw = ti.Vector([0.0] * (self.n_levels + 1))
         hw = ti.Vector([0.0] * self.n_levels)
+        fw[self.n_levels] = w[self.n_levels]       # a uniform photon: weight 1 in its own accumulator
         if denom > 0.0:
             for level in ti.static(range(self.n_levels)):
                 if w[level] > 0.0 and t[level] > 0.0:
@@ -256,7 +271,13 @@ class GuidedPhotons(Sppm):
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * n_p / np.maximum(recorded, 1e-300), 0.0)
-        self.level_scale.from_numpy(scale * (self.power_scale / FIXED_ONE))
+        # The flux: (1 - beta) x the levels' (each at its normalisation) + beta x the uniform
+        # photons' (sppm's estimator over this pass's n_U uniform photons, one per step).
+        n_uniform = int(tallies["counters"][0, UNIFORM])
+        raw = np.append(scale, n_p / n_uniform if n_uniform > 0 else 0.0) * (self.power_scale / FIXED_ONE)
+        beta = self.beta.value if n_uniform > 0 else 0.0
+        upload_fields([(self.level_scale, raw * np.append(np.full(self.n_levels, 1.0 - beta), beta)),
+                       (self.raw_scale, raw)])
         self._after_pass(scale)
         self._update_balanced(n_p)
         self.pool.adapt(tallies, self.target_acceptance,
@@ -269,6 +290,15 @@ class GuidedPhotons(Sppm):
             self.passes_with_b += 1
         self.photons_emitted += n_p
         self.work_done += n_p
+
+    def _observe_uniform_weight(self, s_chains: float, s_uniform: float, s_product: float):
+        """The pass's even-odd sums of the chains' and the uniform photons' estimates
+        (Sppm._update): beta for the next pass, and the mutation probability that follows it."""
+        if s_chains <= 0.0 and s_uniform <= 0.0:
+            return          # nothing deposited: no evidence either way
+        self.beta.observe(s_uniform, s_chains, s_product)
+        if self.beta.auto:
+            self.pool.mutation_probability = float(max(1.0 - self.beta.value, MIN_MUTATION))
 
     def _steps_this_pass(self) -> int:
         """At least --photons, and enough that every chain meets ~REGENERATIONS visible uniform
@@ -329,6 +359,8 @@ class GuidedPhotons(Sppm):
             "suffix_mutation": self.suffix_mutation,
             "mutation": "blocks" if self.mutation_blocks > 1 else "joint",
             "uniform_visible_fraction": float(t[0, UNIFORM_VISIBLE]) / max(int(t[0, UNIFORM]), 1),
+            "uniform_weight": self.beta.value, "uniform_weight_auto": self.beta.auto,
+            "mutation_probability": self.pool.mutation_probability,
             "photon_paths_traced": int(self.paths_traced[None]),
             "levels": levels,
         })
@@ -347,7 +379,7 @@ class GuidedPhotons(Sppm):
         if t[0, SUFFIX_TRIED]:
             moves += f"  suffix acc {t[0, SUFFIX_ACCEPTED] / t[0, SUFFIX_TRIED]:.2f}"
         return (f"{super().progress_fields()}  visible {t[0, UNIFORM_VISIBLE] / max(int(t[0, UNIFORM]), 1):.2g}  "
-                f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}{moves}  {b}")
+                f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}{moves}  {b}  beta {self.beta.value:.2f}")
 
 
 @ti.data_oriented

@@ -70,7 +70,7 @@ from ..kernels.photon import dimensions, photon_segments, trace_photon
 from ..kernels.sampling import luminance, vec3
 from ..kernels.subpath_store import BYTES_PER_STORED_VERTEX
 from ..kernels.vcm_mis import PathVertex
-from .effort import EffortBalance, least_variance_share
+from .effort import EffortBalance, UniformWeight, uniform_weight_option
 from .guided import LADDER_BURN_IN
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 
@@ -115,9 +115,8 @@ MAX_CHAINS = 1 << 16
 # One proposal per chain step, a uniform one (large step) with this probability: the value of
 # both reference implementations (algorithms.md §4.2); 0 makes every move every step.
 LARGE_STEP = 0.3
-# --uniform-weight auto: the sums beta is chosen from forget this share per pass, so that beta
-# follows the large-step probability it steers (below); at most this probability.
-UNIFORM_WEIGHT_MEMORY = 0.9
+# --uniform-weight auto raises the large-step probability to beta (methods/effort.py's
+# UniformWeight), at most to this.
 MAX_LARGE_STEP = 0.95
 BOOTSTRAP_HITS = 8       # visible uniform proposals a contribution chain's start is resampled from
 # The contribution chain makes small steps only and mixes slowly from its resampled start:
@@ -180,7 +179,7 @@ class Mbe(Vcm):
         if opts["balance"] not in ("mse", "relmse"):
             raise SettingsError(f"--balance must be 'mse' or 'relmse', got '{opts['balance']}'")
         self.relative_balance = opts["balance"] == "relmse"
-        self.uniform_weight_auto, self.uniform_weight_fixed = self._uniform_weight_option(opts["uniform_weight"])
+        uniform_weight_option(opts["uniform_weight"])     # checked here, used from _reset_chains
         if self.camera_paths_auto and self.n_chains < 2:
             raise SettingsError("--camera-paths auto needs --chains 2 or more: the balance measures the light "
                                 "side's variance from two independent halves of the ladders (docs/mbe.md)")
@@ -211,7 +210,7 @@ class Mbe(Vcm):
         self.light_frame = f.vector(3, ti.i64, (2 * self.n_levels, h, w))
         # The uniform proposals' own estimate of the light side (plain Monte Carlo: every
         # uniform proposal's splat list, visible or not), per ladder parity; it joins the
-        # chains' with the weight beta (see _update_uniform_weight).
+        # chains' with the weight beta (methods/effort.py's UniformWeight).
         self.uniform_frame = f.vector(3, ti.i64, (2, h, w))
         self.uniform_probe = f.scalar(ti.i32, c)         # 1 while ladder c probes a uniform proposal
         self.last_estimate = f.scalar(ti.f64, w * h)     # last iteration's luminance per pixel (effort)
@@ -248,21 +247,6 @@ class Mbe(Vcm):
                                 f"got '{value}'")
         return int(k), False, int(k)
 
-    @staticmethod
-    def _uniform_weight_option(value) -> tuple[bool, float]:
-        """uniform_weight: 'auto' (the default: chosen from the measured variances) or a fixed
-        share in [0, 1] of the light side that the uniform proposals' estimate carries
-        (0: the chains' alone, as before; 1: the uniform proposals' alone, VCM's estimator)."""
-        if value is None or value == "auto":
-            return True, 0.0
-        try:
-            beta = float(value)
-        except (TypeError, ValueError):
-            beta = float("nan")
-        if isinstance(value, bool) or not 0.0 <= beta <= 1.0:
-            raise SettingsError(f"--uniform-weight must be 'auto' or a number in [0, 1], got '{value}'")
-        return False, beta
-
     def _stored_paths(self) -> int:
         """mbe stores the camera subpaths' vertices: as many subpaths per pixel as it may trace."""
         return self.n_pixels * self.max_camera_paths
@@ -288,10 +272,8 @@ class Mbe(Vcm):
     def _reset_chains(self):
         fill_fields([(self.b_mis, 1.0), (self.pre_scale, 1.0), (self.light_counters, 0), (self.light_frame, 0),
                      (self.uniform_frame, 0), (self.list_stats, 0), (self.last_estimate, 0.0)])
-        # beta, the uniform proposals' share of the light side, and the sums over passes of the
-        # squared even-odd differences it is chosen from (uniform, chains, their product)
-        self.uniform_weight = 0.0 if self.uniform_weight_auto else self.uniform_weight_fixed
-        self.uniform_weight_sums = np.zeros(3)
+        # beta, the uniform proposals' share of the light side (methods/effort.py)
+        self.beta = UniformWeight(self.options["uniform_weight"])
         if self.camera_paths_auto:
             self.camera_paths = 1
         self.pool.large_step = self.large_step
@@ -397,7 +379,7 @@ class Mbe(Vcm):
         estimate of the whole light side by itself."""
         uniform_per_chain = tallies["uniform_per_chain"]
         n_uniform = float(uniform_per_chain.sum())
-        beta = self.uniform_weight if n_uniform > 0 else 0.0
+        beta = self.beta.value if n_uniform > 0 else 0.0
         uniform_scale = steps / n_uniform if n_uniform > 0 else 0.0
         frame = (*((1.0 - beta) * scale / self.pre_scale_host.astype(np.float64)), beta * uniform_scale)
         unit = self.film.unit / self.pre_scale_host.astype(np.float64)
@@ -439,28 +421,16 @@ class Mbe(Vcm):
         if self.camera_paths_auto:
             self.camera_paths = self.effort.next_camera_paths(steps, self.max_camera_paths)
         if n_odd > 0 and min(uniform_halves) > 0.0:
-            self._update_uniform_weight(s_uniform, s_chains, s_product)
-
-    def _update_uniform_weight(self, s_uniform: float, s_chains: float, s_product: float):
-        """beta for the next pass: the share of the uniform proposals' estimate U in the light
-        side beta U + (1 - beta) C that minimises its variance, from the sums over every pass
-        so far of the even-odd differences (4x each estimate's variance, and their
-        covariance): beta = (V_C - Cov) / (V_U + V_C - 2 Cov), clamped to [0, 1]. Chosen
-        before the pass it weights, so the weight does not depend on that pass's samples.
-        Where light subpaths rarely contribute U is noisy and beta goes to 0 (the chains'
-        estimate, Sik et al.'s); where most do, the chains' correlated records are worth less
-        than the independent proposals they started from, and beta rises (docs/mbe.md,
-        "The uniform proposals' estimate")."""
-        self.uniform_weight_sums = UNIFORM_WEIGHT_MEMORY * self.uniform_weight_sums + (s_uniform, s_chains, s_product)
-        if not self.uniform_weight_auto:
-            return
-        beta = least_variance_share(*self.uniform_weight_sums)
-        if beta is not None:
-            self.uniform_weight = beta
-        if self.large_step > 0.0:
-            # Steps follow the weight: where the uniform proposals' estimate carries a larger
-            # share than they have of the steps, they get that share (at least --large-step).
-            self.pool.large_step = float(min(max(self.large_step, self.uniform_weight), MAX_LARGE_STEP))
+            # beta for the next pass. Where light subpaths rarely contribute U is noisy and
+            # beta goes to 0 (the chains' estimate, Sik et al.'s); where most do, the chains'
+            # correlated records are worth less than the independent proposals they started
+            # from, and beta rises (docs/mbe.md, "The uniform proposals' estimate").
+            self.beta.observe(s_uniform, s_chains, s_product)
+            if self.beta.auto and self.large_step > 0.0:
+                # Steps follow the weight: where the uniform proposals' estimate carries a
+                # larger share than they have of the steps, they get that share (at least
+                # --large-step).
+                self.pool.large_step = float(min(max(self.large_step, self.beta.value), MAX_LARGE_STEP))
 
     @ti.kernel
     def _end_pass(self, s0: ti.f64, s1: ti.f64, su: ti.f64, full0: ti.f64, full1: ti.f64, full_u: ti.f64,
@@ -741,7 +711,7 @@ class Mbe(Vcm):
         acc = t[:, ACCEPTED] / np.maximum(t[:, MUTATIONS], 1)
         swap = t[0, SWAPS_ACCEPTED] / max(int(t[0, SWAPS_TRIED]), 1)
         return (f"radius {self.radius:.3g}  b_V {self.b_last[0]:.2g}  acc {acc[0]:.2f}/{acc[1]:.2f}  "
-                f"swap {swap:.2f}  beta {self.uniform_weight:.2f}" +
+                f"swap {swap:.2f}  beta {self.beta.value:.2f}" +
                 (f"  K {self.camera_paths}" if self.camera_paths_auto else ""))
 
     def method_stats(self):
@@ -767,7 +737,8 @@ class Mbe(Vcm):
             "light_paths_per_iteration": self.n_light, "chain_steps_last_iteration": self.steps_last,
             "camera_paths_per_pixel": self.camera_paths,
             "camera_paths_per_pixel_auto": self.camera_paths_auto,
-            "uniform_weight": self.uniform_weight, "uniform_weight_auto": self.uniform_weight_auto,
+            "uniform_weight": self.beta.value, "uniform_weight_auto": self.beta.auto,
+            "large_step_last_iteration": self.pool.large_step,
             "effort": self.effort.stats(),
             "chains": self.n_chains,
             "mis": "modified" if self.modified_mis else "plain",

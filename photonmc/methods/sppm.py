@@ -72,6 +72,9 @@ class Sppm(Method):
     TRANSIENT = ("grid", "mp_p", "mp_n", "mp_wo", "mp_W", "mp_bsdf", "mp_depth", "mp_valid", "mp_radius",
                  "mp_direct", "M", "phi", "phi_odd")
     n_levels = 1          # flux accumulators per measurement point (one per Markov-chain level)
+    # The guided methods add one accumulator after the levels': the uniform photons' own
+    # estimate (methods/guided.py), whose halves the update keeps apart from the levels'.
+    uniform_accumulator = False
     # What trace_photon hands this visitor: vertices after the first segment (direct light is
     # the camera pass's), without the VCM partial sums.
     visits_from_segment = 2
@@ -109,6 +112,7 @@ class Sppm(Method):
         self.photons_emitted = 0
         self.photon_paths_used = 0
 
+        self.n_acc = self.n_levels + (1 if self.uniform_accumulator else 0)
         f = FieldGroup(f"sppm-{self.n_levels}-levels")
         n = self.n_mp = self.n_pixels * self.max_camera_paths
         # This iteration's measurement points: MP j is camera path j // n_pixels of pixel
@@ -132,14 +136,21 @@ class Sppm(Method):
         self.ld_pass = f.vector(3, ti.f64, n)           # this iteration's direct light
         # Per-iteration accumulators (fixed point), per MP, and counters.
         self.M = f.scalar(ti.i64, self.n_mp)
-        self.phi = f.vector(3, ti.i64, (self.n_levels, self.n_mp))
-        self.phi_odd = f.vector(3, ti.i64, (self.n_levels, self.n_mp))   # the odd half's part of phi (effort.py)
+        self.phi = f.vector(3, ti.i64, (self.n_acc, self.n_mp))
+        self.phi_odd = f.vector(3, ti.i64, (self.n_acc, self.n_mp))   # the odd half's part of phi (effort.py)
         self.estimate_last = f.scalar(ti.f64, n)    # per pixel: the last iteration's own estimate
         self.spread = f.scalar(ti.f64, n)           # per pixel: (this estimate - the last one)^2
         self.half_difference = f.scalar(ti.f64, n)  # per pixel: n (t_a - t_b)^2 / 4
         self.deposits = f.scalar(ti.f64, n)         # per pixel: photons deposited into its MPs this pass
-        self.effort_sums = f.scalar(ti.f64, 7)      # their sums, and the pass's counted work
-        self.level_scale = f.scalar(ti.f64, self.n_levels)     # fixed point -> flux, per level
+        self.effort_sums = f.scalar(ti.f64, 10)     # their sums, and the pass's counted work
+        self.level_scale = f.scalar(ti.f64, self.n_acc)     # fixed point -> flux, per accumulator
+        if self.uniform_accumulator:
+            # Each accumulator's scale as an estimate by itself (level_scale holds them weighted),
+            # and per pixel the even-odd differences of the chains' and the uniform photons'
+            # estimates (the halves the uniform photons' weight is chosen from).
+            self.raw_scale = f.scalar(ti.f64, self.n_acc)
+            self.half_chains = f.scalar(ti.f64, n)
+            self.half_uniform = f.scalar(ti.f64, n)
         # 0: photon paths that deposited, 1: non-finite direct samples, 2: camera rays this
         # pass, 3: photon segments this pass (the work the effort balance counts)
         self.counters = f.scalar(ti.i64, 4)
@@ -206,7 +217,8 @@ class Sppm(Method):
         if self.effort is None:
             return
         self._effort_sums()
-        spread, half, radius_sq, valid, camera_rays, segments, deposits = self.effort_sums.to_numpy()
+        spread, half, radius_sq, valid, camera_rays, segments, deposits, *separate = self.effort_sums.to_numpy()
+        self._observe_uniform_weight(*separate)
         n = float(self.n_pixels)
         self.effort.observe(n_p, spread / n, half / n, radius_sq / max(valid, 1.0),
                             camera_rays + k * n, segments, camera_paths=k,   # rays, and the grid over the MPs
@@ -215,6 +227,9 @@ class Sppm(Method):
             self.photons_per_iteration = self.effort.next_photons()
         if self.camera_paths_auto:
             self.camera_paths = self.effort.next_camera_paths(n_p, self.max_camera_paths)
+
+    def _observe_uniform_weight(self, s_chains: float, s_uniform: float, s_product: float):
+        """The guided methods choose the uniform photons' weight from these sums (guided.py)."""
 
     @ti.kernel
     def _camera_pass(self, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32, r_abs: ti.f32, r_per_dist: ti.f32,
@@ -325,7 +340,7 @@ class Sppm(Method):
         ok = 0
         if (contrib == contrib).all() and contrib.max() * weights.max() < 1e9:
             ti.atomic_add(self.M[j], 1)
-            for level in ti.static(range(self.n_levels)):
+            for level in ti.static(range(self.n_acc)):
                 if weights[level] > 0.0:
                     fixed = ti.cast(contrib * ti.cast(weights[level], ti.f64) * FIXED_ONE + 0.5, ti.i64)
                     for c in ti.static(range(3)):
@@ -348,6 +363,8 @@ class Sppm(Method):
             valid = 0
             w_phi = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             w_phi_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            # chains' and uniform photons' estimates apart, each at its own scale: even, odd
+            w_sep = ti.Matrix([[0.0] * 3] * 4, ti.f64)
             for s in range(camera_paths):
                 j = s * n + i
                 ld += self.mp_direct[j]
@@ -356,14 +373,22 @@ class Sppm(Method):
                     m += ti.cast(self.M[j], ti.f64)
                     phi = ti.Vector([0.0, 0.0, 0.0], ti.f64)
                     phi_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-                    for level in ti.static(range(self.n_levels)):
+                    for level in ti.static(range(self.n_acc)):
                         phi += ti.cast(self.phi[level, j], ti.f64) * self.level_scale[level]
                         phi_odd += ti.cast(self.phi_odd[level, j], ti.f64) * self.level_scale[level]
                     w = ti.cast(self.mp_W[j], ti.f64)
                     w_phi += w * phi
                     w_phi_odd += w * phi_odd
+                    if ti.static(self.uniform_accumulator):
+                        for level in ti.static(range(self.n_acc)):
+                            row = 2 if level == self.n_levels else 0
+                            odd = ti.cast(self.phi_odd[level, j], ti.f64)
+                            even = ti.cast(self.phi[level, j], ti.f64) - odd
+                            for c in ti.static(range(3)):
+                                w_sep[row, c] += w[c] * even[c] * self.raw_scale[level]
+                                w_sep[row + 1, c] += w[c] * odd[c] * self.raw_scale[level]
                 self.M[j] = 0
-                for level in ti.static(range(self.n_levels)):
+                for level in ti.static(range(self.n_acc)):
                     self.phi[level, j] = ti.Vector([0, 0, 0], ti.i64)
                     self.phi_odd[level, j] = ti.Vector([0, 0, 0], ti.i64)
             self.deposits[i] = m
@@ -374,6 +399,7 @@ class Sppm(Method):
             # half of its photons, for the effort balance (effort.py), before the update.
             inc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             inc_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            chains, uniform = ti.f64(0.0), ti.f64(0.0)
             if valid > 0:
                 m /= ti.cast(valid, ti.f64)     # photons per MP: the radius follows photon density, not K
             if m > 0.0:
@@ -384,6 +410,14 @@ class Sppm(Method):
                 w_phi /= k
                 inc = w_phi / (ti.f64(PI) * r * r)
                 inc_odd = w_phi_odd / k / (ti.f64(PI) * r * r)
+                if ti.static(self.uniform_accumulator):
+                    # the same even-odd differences for the chains and the uniform photons
+                    # apart, each at its own scale (not weighted by its share)
+                    area = k * ti.f64(PI) * r * r * n_p
+                    d_c = ti.Vector([w_sep[0, 0] - w_sep[1, 0], w_sep[0, 1] - w_sep[1, 1], w_sep[0, 2] - w_sep[1, 2]])
+                    d_u = ti.Vector([w_sep[2, 0] - w_sep[3, 0], w_sep[2, 1] - w_sep[3, 1], w_sep[2, 2] - w_sep[3, 2]])
+                    chains = lum.dot(2.0 * d_c / area)
+                    uniform = lum.dot(2.0 * d_u / area)
                 self.D[i] += inc                                        # D form (algorithms.md §1.3)
                 self.tau[i] = (self.tau[i] + w_phi) * (r_new * r_new) / (r * r)   # tau form, kept for the test
                 self.N[i] = n_new
@@ -393,17 +427,26 @@ class Sppm(Method):
             self.estimate_last[i] = estimate
             halves = lum.dot(2.0 * (inc - inc_odd) / n_p) - lum.dot(2.0 * inc_odd / n_p)
             self.half_difference[i] = n_p * halves * halves / 4.0
+            if ti.static(self.uniform_accumulator):
+                self.half_chains[i] = chains
+                self.half_uniform[i] = uniform
+
 
     @ti.kernel
     def _effort_sums(self):
         """Sums over pixels for the effort balance, in one fixed order (a serial loop), so
         that the photon count it picks, and so the image, does not depend on thread timing."""
-        sums = ti.Vector([0.0] * 5, ti.f64)
+        sums = ti.Vector([0.0] * 8, ti.f64)
         ti.loop_config(serialize=True)
         for i in range(self.n_pixels):
             sums[0] += self.spread[i]
             sums[1] += self.half_difference[i]
             sums[4] += self.deposits[i]
+            if ti.static(self.uniform_accumulator):
+                c, u = self.half_chains[i], self.half_uniform[i]
+                sums[5] += c * c
+                sums[6] += u * u
+                sums[7] += c * u
             if self.mp_valid[i]:       # the pixel's first camera path stands for its radius
                 r = ti.cast(self.mp_radius[i], ti.f64)
                 sums[2] += r * r
@@ -413,6 +456,8 @@ class Sppm(Method):
         self.effort_sums[4] = ti.cast(self.counters[2], ti.f64)
         self.effort_sums[5] = ti.cast(self.counters[3], ti.f64)
         self.effort_sums[6] = sums[4]
+        for k in ti.static(range(3)):
+            self.effort_sums[7 + k] = sums[5 + k]     # chains, uniform photons, product
         self.counters[2] = 0
         self.counters[3] = 0
 
