@@ -21,6 +21,20 @@ import numpy as np
 _PRIMES = np.array([73856093, 19349663, 83492791], np.int64)
 
 
+def _morton(cells: np.ndarray) -> np.ndarray:
+    """Morton (Z-order) codes of integer cells (n, 3) of up to 10 bits per axis: the bits of
+    x, y and z interleaved, so that the code of a cell at a coarser level is a prefix."""
+    code = np.zeros(len(cells), np.int64)
+    for axis in range(3):
+        v = cells[:, axis].astype(np.int64) & 0x3FF
+        v = (v | (v << 16)) & 0x030000FF
+        v = (v | (v << 8)) & 0x0300F00F
+        v = (v | (v << 4)) & 0x030C30C3
+        v = (v | (v << 2)) & 0x09249249
+        code |= v << (2 - axis)
+    return code
+
+
 class HitDensityClusters:
     TRANSIENT = ("_cached",)     # a render state keeps the statistics, not the last pass's slots
 
@@ -38,44 +52,66 @@ class HitDensityClusters:
         self.samples = np.zeros(n)          # distinct chain states that hit the cell's MPs
         self._cached = None                 # (points, their slots per level): see _level_slots
 
-    def _level_slots(self, pos: np.ndarray) -> list[np.ndarray]:
-        """Each level's table slot of every point. A pass asks twice for the same points
-        (density before it, accumulate after), so the last answer is kept: hashing 10 levels
-        of 2^17-2^20 points was 40 % of a spatial-tf iteration on the Cornell box at 128^2
-        (docs/performance.md, "Where the time goes")."""
+    def _levels(self, pos: np.ndarray) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+        """The points' cells at every level, from one sort: (order, [(run starts, table slots)
+        per level]). The points are sorted once by the Morton code of their finest cell; a
+        coarser level's cell is a prefix of that code, so each level's cells are runs of the
+        sorted points, and only a run's first point is hashed. (Ten sorts, one per level, and
+        hashing every point at every level were 35-40 % of a spatial-tf iteration on the
+        Cornell box at 64x64 with 18 camera paths per pixel; docs/performance.md.) A pass
+        asks twice for the same points (density before it, accumulate after), so the last
+        answer is kept."""
         if self._cached is not None and self._cached[0] is pos:
             return self._cached[1]
+        finest = self.levels - 1
         base = (pos - self.lo) / self.size          # x 2^level below is exact, so cells are as before
+        cells = np.clip(np.floor(base * (1 << finest)).astype(np.int64), 0, (1 << finest) - 1)
+        code = _morton(cells)
+        order = np.argsort(code, kind="stable")
+        cells, code = cells[order], code[order]
         out = []
         for level in range(self.levels):
-            cells = np.clip(np.floor(base * (1 << level)).astype(np.int64), 0, (1 << level) - 1)
-            h = (cells[:, 0] * _PRIMES[0] + cells[:, 1] * _PRIMES[1] + cells[:, 2] * _PRIMES[2]) \
+            shift = finest - level
+            key = code >> (3 * shift)
+            starts = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1]))) if len(key) else key
+            c = cells[starts] >> shift                  # = floor(base * 2^level), clipped
+            h = (c[:, 0] * _PRIMES[0] + c[:, 1] * _PRIMES[1] + c[:, 2] * _PRIMES[2]) \
                 ^ (np.int64(level) * np.int64(0x9E3779B1))
-            out.append((h ^ (h >> 17)) & self.mask)
-        self._cached = (pos, out)
-        return out
+            out.append((starts, (h ^ (h >> 17)) & self.mask))
+        self._cached = (pos, (order, out))
+        return order, out
 
     def accumulate(self, pos, area, hits, samples) -> None:
         """One pass: pos, area (pi R^2), hits (uniform-path-equivalent hits this pass) and
-        samples (distinct states) of the valid MPs."""
+        samples (distinct states) of the valid MPs. Per cell: kappa += its hits / its area;
+        two cells that share a table slot add up there (a collision changes the importance,
+        never the estimate)."""
         if len(pos) == 0:
             return
-        for level_slots in self._level_slots(pos):
-            slots, inverse = np.unique(level_slots, return_inverse=True)
-            a = np.bincount(inverse, area)
-            h = np.bincount(inverse, hits)
-            s = np.bincount(inverse, samples)
-            self.kappa[slots] += h / np.maximum(a, 1e-300)
-            self.passes[slots] += 1
-            self.samples[slots] += s
+        order, levels = self._levels(pos)
+        area, hits, samples = (np.asarray(x, np.float64)[order] for x in (area, hits, samples))
+        for starts, slots in levels:
+            a = np.add.reduceat(area, starts)
+            np.add.at(self.kappa, slots, np.add.reduceat(hits, starts) / np.maximum(a, 1e-300))
+            self.passes[slots] += 1          # once per pass, however many cells share the slot
+            np.add.at(self.samples, slots, np.add.reduceat(samples, starts))
 
     def density(self, pos) -> np.ndarray:
         """Hits per unit area per pass at each point, from the finest trusted cell; NaN where
         no level has enough samples yet."""
-        rho = np.full(len(pos), np.nan)
-        for slots in self._level_slots(pos):
+        n = len(pos)
+        if n == 0:
+            return np.full(0, np.nan)
+        order, levels = self._levels(pos)
+        rho_sorted = np.full(n, np.nan)
+        for starts, slots in levels:              # coarse to fine: the finest trusted one stays
             trusted = (self.samples[slots] >= self.min_samples) & (self.passes[slots] > 0)
-            rho[trusted] = self.kappa[slots[trusted]] / self.passes[slots[trusted]]
+            value = np.where(trusted, self.kappa[slots] / np.maximum(self.passes[slots], 1), np.nan)
+            per_point = np.repeat(value, np.diff(np.append(starts, n)))
+            keep = ~np.isnan(per_point)
+            rho_sorted[keep] = per_point[keep]
+        rho = np.empty(n)
+        rho[order] = rho_sorted
         return rho
 
     def reset(self):
