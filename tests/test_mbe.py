@@ -82,6 +82,17 @@ def test_uniform_proposals_estimate_keeps_the_furnace(write_scene, uniform_weigh
     assert r.stats["uniform_weight"] > 0.5 if uniform_weight == "auto" else r.stats["uniform_weight"] == 1.0
 
 
+def _after_iterations(name, res, iterations, read):
+    """read(method) after `iterations` of mbe's defaults on bundled scene `name`, seed 1."""
+    p = prepare(load_scene(SCENES / name / "scene.xml", {"res": res}), method="mbe", seed=1)
+    try:
+        for _ in range(iterations):
+            p.method.iterate()
+        return read(p.method)
+    finally:
+        p.release()
+
+
 def test_uniform_weight_follows_where_light_subpaths_contribute():
     """beta, the uniform proposals' share of the light side, is chosen from the measured
     variances: high where most light subpaths contribute (mesh-room, b_V 0.65: the chains'
@@ -89,15 +100,8 @@ def test_uniform_weight_follows_where_light_subpaths_contribute():
     measured 0.80-0.85 over seeds 1-3), low where few do (the attic room, b_V 0.05-0.15:
     measured 0.20-0.26), at 32x32 after 60 iterations. The large-step probability follows
     beta upward and stays at --large-step (0.3) below it."""
-    chosen = {}
-    for name in ("mesh-room", "attic-slit"):
-        p = prepare(load_scene(SCENES / name / "scene.xml", {"res": 32}), method="mbe", seed=1)
-        try:
-            for _ in range(60):
-                p.method.iterate()
-            chosen[name] = (p.method.beta.value, p.method.pool.large_step)
-        finally:
-            p.release()
+    chosen = {name: _after_iterations(name, 32, 60, lambda m: (m.beta.value, m.pool.large_step))
+              for name in ("mesh-room", "attic-slit")}
     print("beta, large-step probability after 60 iterations", chosen)
     beta, large_step = chosen["mesh-room"]
     assert beta > 0.6 and large_step == pytest.approx(beta)
@@ -140,15 +144,7 @@ def test_camera_paths_auto_follows_where_the_error_is():
     directly; measured K 12-13 from the fifth pass on) against the caustic (light focused
     through a glass sphere; measured K = 1 throughout). A balance that ignored its
     measurements, or a V_p or V_c estimate off by orders of magnitude, would not part them."""
-    chosen = {}
-    for name in ("cornell-box", "caustic"):
-        p = prepare(load_scene(SCENES / name / "scene.xml", {"res": 16}), method="mbe", seed=1)
-        try:
-            for _ in range(40):
-                p.method.iterate()
-            chosen[name] = p.method.camera_paths
-        finally:
-            p.release()
+    chosen = {name: _after_iterations(name, 16, 40, lambda m: m.camera_paths) for name in ("cornell-box", "caustic")}
     print("K after 40 iterations", chosen)
     assert chosen["cornell-box"] >= 4 and chosen["caustic"] <= 2
 
