@@ -110,7 +110,14 @@ class Window:
         self.env = {**os.environ, "DISPLAY": display}
         with open(self.log, "w") as log:
             self.proc = subprocess.Popen(preview_cmd(*args), stdout=log, stderr=subprocess.STDOUT, env=self.env)
-        self.id = wait_for(self._find, 120, "the preview window")
+        try:
+            self.id = wait_for(self._find, 120, "the preview window")
+        except AssertionError as e:
+            # Seen intermittently under a cold kernel cache with the other tests' load (not
+            # explained yet): say what the preview process was doing, to find out why.
+            state = "running" if self.proc.poll() is None else f"exited with {self.proc.returncode}"
+            self.proc.kill()
+            raise AssertionError(f"{e}; the preview process was {state}; its output:\n{self.text()}") from None
 
     def _find(self):
         r = subprocess.run(["xdotool", "search", "--name", "photonmc preview"], capture_output=True, text=True,
