@@ -7,6 +7,7 @@ import numpy as np
 import taichi as ti
 
 from .kernels.batch import fill_fields
+from .runtime import serial_loop
 from .kernels.fields import FieldGroup
 from .kernels.sampling import luminance
 
@@ -121,6 +122,7 @@ class SplatFilm:
 
     @ti.kernel
     def _flush(self):
+        ti.loop_config(serialize=ti.static(serial_loop(self.width * self.height)))
         for y, x in ti.ndrange(self.height, self.width):
             self.flush_pixel(y, x)
 

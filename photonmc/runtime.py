@@ -72,5 +72,22 @@ def advanced_optimization(enabled: bool):
         cfg.advanced_optimization = saved
 
 
+# Every parallel loop of a kernel is handed to Taichi's CPU thread pool, and the hand-off costs
+# 0.2-0.27 ms on the 2-core machines measured, whatever the loop's length and thread count
+# (an empty 16-item loop: 0.26 ms parallel, 0.06 ms serial; 2^16 cheap items: 0.34 against
+# 0.17 ms; docs/performance.md, "Parallel loops that cost more than they do"). A 64x64
+# iteration runs ten or more such loops besides its few long ones, so the short ones run
+# serially: cheap per-item loops up to SERIAL_ITEMS iterations (a fixed count, not a timing,
+# so that an image never depends on how fast the machine was that day).
+SERIAL_ITEMS = 1 << 14
+
+
+def serial_loop(items: int) -> bool:
+    """Whether a loop of `items` cheap iterations (copies, clears, a few atomics each) should
+    run serially: on the CPU backend up to SERIAL_ITEMS; never on a GPU, where one thread is
+    slow and a launch is cheap."""
+    return ti.lang.impl.current_cfg().arch == ti.cpu and int(items) <= SERIAL_ITEMS
+
+
 def is_initialised() -> bool:
     return _current is not None

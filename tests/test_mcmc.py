@@ -50,11 +50,16 @@ def targets_np(x, y, kind, levels, shift=0):
 
 @ti.data_oriented
 class ToyModel:
-    """Targets: V (the support), V (0.1 + x), V (0.05 + 4xy); deposits into per-group histograms."""
+    """Targets: V (the support), V (0.1 + x), V (0.05 + 4xy); deposits into per-group histograms.
 
-    def __init__(self, levels, chains, kind="strip", shift=0):
+    lazy (a pool of 3 coordinates with store_read): y is the last coordinate, and a third, z,
+    is read only where x < 0.5, where it multiplies the upper levels' targets by 2z (whose
+    mean is 1, so each target's marginal over (x, y) is unchanged); the trace reports the
+    coordinates it read, 1 or 2, as mbe's light subpaths of varying length do."""
+
+    def __init__(self, levels, chains, kind="strip", shift=0, lazy=False):
         # shift 1: the levels are T1, T2 (a level 0 that is not binary)
-        self.levels, self.kind_id, self.shift = levels, KINDS[kind], shift
+        self.levels, self.kind_id, self.shift, self.lazy = levels, KINDS[kind], shift, lazy
         self.chains = chains
         f = FieldGroup("toy-model")
         self.hist = f.scalar(ti.f64, (levels, GROUPS, BINS, BINS))
@@ -65,9 +70,16 @@ class ToyModel:
     @ti.func
     def trace(self, source: ti.template(), key, vkey, mode, w, t):
         x = source.get(key, 0)
-        y = source.get(key, 1)
+        y = source.get(key, ti.static(2 if self.lazy else 1))
+        read = 2
+        z_factor = 1.0
+        if ti.static(self.lazy):
+            read = 1
+            if x < 0.5:
+                z_factor = 2.0 * source.get(key, 1)
+                read = 2
         v = ti.cast(in_support(x, y, self.kind_id), ti.f32)
-        full = ti.Vector([v, v * (0.1 + x), v * (0.05 + x * y * 4.0)])
+        full = ti.Vector([v, v * (0.1 + x) * z_factor, v * (0.05 + x * y * 4.0) * z_factor])
         out = ti.Vector([0.0] * self.levels)
         for k in ti.static(range(self.levels)):
             out[k] = full[k + self.shift]
@@ -79,7 +91,7 @@ class ToyModel:
                 self.hist[k, g, bx, by] += ti.cast(w[k], ti.f64)
             if ti.static(w.n > self.levels):
                 self.uniform_hist[g, bx, by] += ti.cast(w[self.levels], ti.f64)
-        return out, 2
+        return out, read
 
 
 def exact_bins(kind, levels, shift=0):
@@ -95,9 +107,9 @@ def exact_bins(kind, levels, shift=0):
 def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="strip", drop=False, ev=False,
             adapt=True, theta=None, seed=3, target_acceptance=0.234, burn_in=0.0, seeding="copy", bootstrap=0.125,
             shift=0, large_step=0.0, suffix_mutation=0.0, block_starts=(), base_records_in_burn_in=False,
-            mutation_probability=1.0, uniform_estimate=False, out=None):
-    model = ToyModel(levels, chains, kind, shift)
-    pool = ChainPool(chains, levels, 2, drop_failures=drop, expected_values=ev, burn_in=burn_in,
+            mutation_probability=1.0, uniform_estimate=False, lazy=False, out=None):
+    model = ToyModel(levels, chains, kind, shift, lazy)
+    pool = ChainPool(chains, levels, 3 if lazy else 2, store_read=lazy, drop_failures=drop, expected_values=ev, burn_in=burn_in,
                      binary_base=shift == 0, seeding=seeding, bootstrap=bootstrap, large_step=large_step,
                      suffix_mutation=suffix_mutation, suffix_starts=(1,), block_starts=block_starts,
                      base_records_in_burn_in=base_records_in_burn_in, uniform_estimate=uniform_estimate)
@@ -108,8 +120,7 @@ def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="st
     last = None
     sum_uniform = 0
     for it in range(passes):
-        pool.begin_pass(model)
-        pool.run(model, seed, it, chains * steps_per_chain)
+        pool.run_pass(model, seed, it, chains * steps_per_chain)
         last = pool.tallies()
         sum_uniform += int(last["counters"][0, 2])
         b_sum += pool.normalisations(last)
@@ -119,6 +130,7 @@ def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="st
     if out is not None:       # what else the caller asked for
         out["uniform_hist"] = model.uniform_hist.to_numpy()
         out["uniform_proposals"] = sum_uniform
+        out["states"] = (pool.u.to_numpy(), pool.ell.to_numpy(), pool.T.to_numpy())
     theta = pool.theta.to_numpy() if not block_starts else pool.block_theta.to_numpy()
     model.fields.release()
     pool.release()
@@ -273,6 +285,29 @@ def test_one_move_per_step_keeps_every_target(levels):
     c = last["counters"]
     uniform_share = c[0, 2] / (GROUPS * 16 * 800)      # uniform proposals per step, last pass
     assert abs(uniform_share - 0.3) < 0.005
+
+
+def test_states_that_keep_only_the_coordinates_they_read_keep_every_target():
+    """store_read (mbe's states keep the coordinates their light subpath read, and the pairing
+    coordinate): the toy's z is stored only by states with x < 0.5, so a mutation from x >= 0.5
+    into x < 0.5 draws z afresh, and the upper levels' targets depend on it. Every level must
+    still sample its target (z's factor has mean 1, so the exact bins are the plain toy's),
+    with one move per step and resampled starts as mbe runs them."""
+    out = {}
+    hist, b, last, _ = run_toy(3, passes=4, steps_per_chain=800, seeding="resample", large_step=0.3, lazy=True,
+                               out=out)
+    assert_every_level_samples_its_target(hist, b, exact_bins("strip", 3), rtol=0.02)
+    assert last["counters"][1, ACCEPTED] > 0 and last["counters"][2, ACCEPTED] > 0
+    # Each stored state is the path it was evaluated as: its targets from the stored
+    # coordinates (z where it was read) equal the ones recorded when it was accepted.
+    u, ell, t = out["states"]
+    held = (ell > 0) & (t[:, 0] > 0)
+    x, y = u[held, 0], u[held, 2]
+    z_factor = np.where(x < 0.5, 2.0 * u[held, 1], 1.0)
+    assert (ell[held] >= np.where(x < 0.5, 2, 1)).all()
+    v = support_np(x, y, "strip")
+    np.testing.assert_allclose(t[held], np.stack([v, v * (0.1 + x) * z_factor, v * (0.05 + 4 * x * y) * z_factor], 1),
+                               rtol=1e-5)
 
 
 @pytest.mark.parametrize("ev", [False, True], ids=["splat-states", "expected-values"])

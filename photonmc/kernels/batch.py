@@ -4,13 +4,16 @@
 field (the field is a template argument): 40-60 of them before a guided method's first
 image and about 40 more in its first state save, each costing tens of milliseconds of
 compilation with a cold cache. One loop over all the fields' scalars together compiles once
-per batch and several times faster (docs/performance.md, "Compile time").
+per batch and several times faster (docs/performance.md, "Compile time"). A short batch runs
+serially (runtime.serial_loop): handing a loop to the thread pool costs more than it does.
 No `from __future__ import annotations` here: Taichi reads the kernels' annotations as objects.
 """
 from collections import OrderedDict
 
 import numpy as np
 import taichi as ti
+
+from ..runtime import serial_loop
 
 NP_DTYPES = {ti.f32: np.float32, ti.f64: np.float64, ti.i32: np.int32, ti.i64: np.int64, ti.u32: np.uint32}
 
@@ -78,8 +81,9 @@ def _get_flat(f: ti.template(), flat):
 
 
 @ti.kernel
-def _fill_batch(fields: ti.template(), plan: ti.template(), total: ti.i32):
+def _fill_batch(fields: ti.template(), plan: ti.template(), total: ti.i32, serial: ti.template()):
     """plan[k] = (first flat index, scalars, value) of fields[k] in one flat range."""
+    ti.loop_config(serialize=serial)
     for j in range(total):
         for k in ti.static(range(len(fields))):
             if ti.static(plan[k][0]) <= j < ti.static(plan[k][0] + plan[k][1]):
@@ -87,8 +91,10 @@ def _fill_batch(fields: ti.template(), plan: ti.template(), total: ti.i32):
 
 
 @ti.kernel
-def _upload_batch(fields: ti.template(), plan: ti.template(), data: ti.types.ndarray(), total: ti.i32):
+def _upload_batch(fields: ti.template(), plan: ti.template(), data: ti.types.ndarray(), total: ti.i32,
+                  serial: ti.template()):
     """plan[k] = (first flat index, scalars) of fields[k] in data."""
+    ti.loop_config(serialize=serial)
     for j in range(total):
         for k in ti.static(range(len(fields))):
             if ti.static(plan[k][0]) <= j < ti.static(plan[k][0] + plan[k][1]):
@@ -96,8 +102,10 @@ def _upload_batch(fields: ti.template(), plan: ti.template(), data: ti.types.nda
 
 
 @ti.kernel
-def _download_batch(fields: ti.template(), plan: ti.template(), data: ti.types.ndarray(), total: ti.i32):
+def _download_batch(fields: ti.template(), plan: ti.template(), data: ti.types.ndarray(), total: ti.i32,
+                    serial: ti.template()):
     """plan[k] = (first flat index, scalars) of fields[k] in data."""
+    ti.loop_config(serialize=serial)
     for j in range(total):
         for k in ti.static(range(len(fields))):
             if ti.static(plan[k][0]) <= j < ti.static(plan[k][0] + plan[k][1]):
@@ -127,7 +135,7 @@ def fill_fields(pairs) -> None:
         for f, v in batch:
             plan.append((offset, _size(f), float(v) if f.dtype in (ti.f32, ti.f64) else int(v)))
             offset += _size(f)
-        _fill_batch(tuple(f for f, _ in batch), tuple(plan), offset)
+        _fill_batch(tuple(f for f, _ in batch), tuple(plan), offset, serial_loop(offset))
 
 
 def upload_fields(pairs) -> None:
@@ -145,7 +153,7 @@ def upload_fields(pairs) -> None:
             for f, a in batch:
                 plan.append((offset, a.size))
                 offset += a.size
-            _upload_batch(tuple(f for f, _ in batch), tuple(plan), data, offset)
+            _upload_batch(tuple(f for f, _ in batch), tuple(plan), data, offset, serial_loop(offset))
 
 
 def numpy_shape(field) -> tuple:
@@ -175,7 +183,7 @@ def download_fields(fields) -> list:
                 plan.append((offset, _size(f)))
                 offset += _size(f)
             data = np.empty(offset, NP_DTYPES[dtype])
-            _download_batch(tuple(f for f, _ in batch), tuple(plan), data, offset)
+            _download_batch(tuple(f for f, _ in batch), tuple(plan), data, offset, serial_loop(offset))
             for (f, i), (start, n) in zip(batch, plan):
                 out[i] = data[start:start + n].reshape(numpy_shape(f)).copy()
     return out

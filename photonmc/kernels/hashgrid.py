@@ -10,6 +10,7 @@ slots, so that a small pass does not pay for clearing and scanning the largest o
 """
 import taichi as ti
 
+from ..runtime import serial_loop
 from .fields import FieldGroup
 
 
@@ -162,23 +163,28 @@ class PointGrid(HashGrid):
         slots = 1
         while slots < 2 * count and slots < self.table_size:
             slots *= 2
-        self._build(pos, valid, radius, slots, count)
+        self._build(pos, valid, radius, slots, count, serial_loop(slots))
 
     @ti.kernel
-    def _build(self, pos: ti.template(), valid: ti.template(), radius: ti.f32, slots: ti.i32, count: ti.i32):
+    def _build(self, pos: ti.template(), valid: ti.template(), radius: ti.f32, slots: ti.i32, count: ti.i32,
+               serial: ti.template()):
         """One launch: the kernel's top-level loops run one after the other (clear, count,
         prefix sum, fill), and every launch costs tens of microseconds on the host, a few per
-        cent of a small image's iteration (docs/performance.md)."""
+        cent of a small image's iteration (docs/performance.md). serial (few points): the
+        loops run on the launching thread (runtime.serial_loop)."""
         self.max_radius[None] = radius
         self.cell_size[None] = ti.max(2.0 * radius, 1e-30)
         self.slot_mask[None] = slots - 1
+        ti.loop_config(serialize=serial)
         for h in range(slots):
             self.cell_count[h] = 0
             self.cell_fill[h] = 0
+        ti.loop_config(serialize=serial)
         for i in range(count):
             if valid[i]:
                 ti.atomic_add(self.cell_count[self.slot(self.cell_of(pos[i]))], 1)
         self._cell_starts(slots)
+        ti.loop_config(serialize=serial)
         for i in range(count):
             if valid[i]:
                 h = self.slot(self.cell_of(pos[i]))

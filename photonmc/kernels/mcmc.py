@@ -86,10 +86,11 @@ UNIFORM_MODE, MUTATION_MODE, STATE_MODE, SUFFIX_MODE = 0, 1, 2, 3
 MODE_BITS = 4
 # What a model's trace does with the path.
 PROBE, DEPOSIT = 0, 1
-# What one launch of ChainPool._run does: re-evaluate every stored state (PROBE), deposit every
-# pending weight (DEPOSIT), or take the pass's chain steps (STEPS). One kernel for all three,
-# with one trace call site: each inlined copy of a model's tracer costs seconds of
-# compilation (mbe's: 8 s of a 28 s first image, docs/performance.md).
+# What a ladder's step in ChainPool._run does: re-evaluate every stored state (PROBE), deposit
+# every pending weight (DEPOSIT), or a chain step (STEPS). A pass is all three in one launch,
+# through one trace call site: each inlined copy of a model's tracer costs seconds of
+# compilation (mbe's: 8 s of a 28 s first image), and each launch of a parallel loop a
+# hand-off to the thread pool of 0.2-0.27 ms (docs/performance.md).
 STEPS = 2
 
 
@@ -109,7 +110,7 @@ class _ChainSource:
         v = rng.uniform(key[1] ^ ti.u32(FRESH_SALT), dim)     # a coordinate never read before
         if mode == UNIFORM_MODE or (mode == SUFFIX_MODE and dim >= ti.cast(key[3] // MODE_BITS, ti.i32)):
             v = rng.uniform(key[1], dim)
-        elif dim < self.pool.ell[slot]:
+        elif dim < self.pool.ell[slot] or (ti.static(self.pool.store_read) and dim == ti.static(self.pool.dims - 1)):
             v = self.pool.u[slot, dim]
             if mode == MUTATION_MODE:
                 theta = 0.0
@@ -172,8 +173,18 @@ class ChainPool:
                  expected_values: bool = False, burn_in: float = 0.0, binary_base: bool = True,
                  seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8, large_step: float = 0.0,
                  suffix_mutation: float = 0.0, suffix_starts: tuple = (), block_starts: tuple = (),
-                 base_records_in_burn_in: bool = False, warm_start: bool = False, uniform_estimate: bool = False):
+                 base_records_in_burn_in: bool = False, warm_start: bool = False, uniform_estimate: bool = False,
+                 store_read: bool = False):
         self.n_chains, self.n_levels, self.dims = n_chains, n_levels, dims
+        # store_read: an accepted state keeps only the coordinates its evaluation read (the
+        # trace's second result) and the last one, instead of all `dims`. For models whose
+        # evaluation reads every coordinate any later trace of the state reads (mbe: the whole
+        # light subpath, and its pairing coordinate last). Coordinates never read are
+        # independent uniforms under the target, so a mutation draws them afresh when it first
+        # reads them (lazy primary sample space, Kelemen et al. 2002): the same chain, at the
+        # cost of the path's length instead of the longest path's (max_depth -1: 261
+        # coordinates per state).
+        self.store_read = bool(store_read)
         # uniform_estimate (a binary level 0 only): a state taken from a visible uniform
         # proposal carries one more pending weight, 1, after the levels' (index n_levels), so
         # that the model deposits the uniform proposals as an estimate of their own
@@ -187,7 +198,7 @@ class ChainPool:
         # proposals' estimate carries the pass, the chains' mutations are work it does not
         # need. A kernel argument, so it may change between passes; 1 draws no random number.
         self.mutation_probability = 1.0
-        # Upper levels whose last state still has a non-zero target after begin_pass's
+        # Upper levels whose last state still has a non-zero target after run_pass's
         # re-evaluation start from it (then burn in) instead of a resampled bootstrap: an
         # experiment on the start-up bias of short passes (docs/mbe.md, "Start-up").
         self.warm_start = bool(warm_start)
@@ -298,23 +309,17 @@ class ChainPool:
         upload_fields([(self.theta, self.theta_host)] +
                       ([(self.block_theta, self.block_theta_host)] if self.n_blocks > 1 else []))
 
-    def begin_pass(self, model):
-        """The target changed (new measurement points): every stored state becomes stale and
-        is re-evaluated; the per-pass tallies are cleared.
+    def run_pass(self, model, seed: int, iteration: int, steps: int):
+        """One pass in one launch, each ladder on its own thread: its stored states re-evaluated
+        (the target changed: new measurement points or camera subpaths, so every stored state
+        is stale), `steps` chain steps in all spread over the ladders, then every pending
+        weight deposited. The per-pass tallies are cleared first.
 
         A stale state is distributed by the old target (restricted to the new one), not by the
         new one: recording it biases the pass by about 1/(steps x b) (measured +2 % to +7 % on
         light-gap, docs/guiding.md). So a pass records level 0 only from its first visible
         uniform proposal on (an exact draw from the new target, after which Metropolis keeps
-        the chain exact), and a higher level only once seeded from a fresh level below."""
-        fill_fields((f, 0) for f in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.uniform_n,
-                                     self.reservoir_sum, self.reservoir_hits, self.adopted) +
-                    ((self.block_counters,) if self.n_blocks > 1 else ()))
-        with _chain_kernel_compilation():
-            self._run(model, 0, 0, 0, 0.0, 0.5, self.large_step, 1.0, PROBE)     # and the warm start
-
-    def run(self, model, seed: int, iteration: int, steps: int):
-        """`steps` chain steps in all, spread over the ladders, then deposit every pending weight.
+        the chain exact), and a higher level only once seeded from a fresh level below.
 
         The first `burn_in` fraction of each ladder's steps records nothing. A ladder's upper
         levels start each pass as copies of level 0's state, not as draws from their targets,
@@ -325,10 +330,12 @@ class ChainPool:
         is exact from its first visible uniform proposal and needs none: with
         base_records_in_burn_in it records the whole pass and exchanges it with level 1 only
         after the burn-in (mbe, docs/mbe.md)."""
+        fill_fields((f, 0) for f in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.uniform_n,
+                                     self.reservoir_sum, self.reservoir_hits, self.adopted) +
+                    ((self.block_counters,) if self.n_blocks > 1 else ()))
         with _chain_kernel_compilation():
             self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, self.large_step,
-                      self.mutation_probability, STEPS)
-            self._run(model, seed, iteration, 0, 0.0, 0.5, self.large_step, 1.0, DEPOSIT)
+                      self.mutation_probability)
 
     def tallies(self, extra=()) -> dict:
         """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l];
@@ -387,11 +394,12 @@ class ChainPool:
     # -- kernels ------------------------------------------------------------------------
     @ti.kernel
     def _run(self, model: ti.template(), seed: ti.u32, iteration: ti.u32, steps: ti.i32, burn_in: ti.f32,
-             bootstrap: ti.f32, large_step: ti.f32, mutate: ti.f32, task: ti.i32):
-        """task STEPS: `steps` chain steps spread over the ladders. PROBE / DEPOSIT: visit
-        every level's stored state once (_step). large_step: this pass's probability of a
-        uniform proposal (one move per step); mutate: the probability that a mutation is
-        made (otherwise skipped, the state recorded again)."""
+             bootstrap: ti.f32, large_step: ti.f32, mutate: ti.f32):
+        """Per ladder: PROBE (visit every level's stored state once, _step) and the warm
+        start, its share of `steps` chain steps (STEPS), DEPOSIT (visit every level's state
+        again). large_step: this pass's probability of a uniform proposal (one move per
+        step); mutate: the probability that a mutation is made (otherwise skipped, the state
+        recorded again). The visits draw no random numbers."""
         base = steps // self.n_chains
         extra = steps % self.n_chains
         for item in range(self.n_chains * ti.static(self.stride)):
@@ -399,20 +407,25 @@ class ChainPool:
                 c = item // ti.static(self.stride)
                 state = rng.seed(seed, ti.u32(c), iteration * ti.u32(2) + ti.u32(1))
                 n = base + (1 if c < extra else 0)
-                if task != STEPS:
-                    n = 1
                 burn = ti.cast(burn_in * n, ti.i32)
                 seeding_steps = ti.max(ti.cast(bootstrap * n, ti.i32), 1) if ti.static(self.resample) else 0
-                for i in range(n):
+                # i = -1: the re-evaluation; 0 .. n-1: the steps; n: the deposits.
+                for j in range(n + 2):
+                    i = j - 1
+                    task = STEPS
+                    if i < 0:
+                        task = PROBE
+                    elif i == n:
+                        task = DEPOSIT
                     if task == STEPS:
                         if ti.static(self.resample):
                             self._seed_from_reservoirs(c, i >= seeding_steps)
                             self.seeding_phase[c] = 1 if i < seeding_steps else 0
                         self.recording[c] = 1 if i >= burn else 0
                     self._step(model, c, state, task, large_step, mutate)
-                if ti.static(self.warm_start):
-                    if task == PROBE:
-                        self._warm_start(c)     # in this launch: each launch costs host time
+                    if ti.static(self.warm_start):
+                        if task == PROBE:
+                            self._warm_start(c)
 
     @ti.func
     def _warm_start(self, c):
@@ -491,6 +504,7 @@ class ChainPool:
                         mode = MUTATION_MODE + MODE_BITS * pick
                 key = ti.math.uvec4(s, rng.next_u32(state), level, mode)
             t_new = zero
+            read = 0          # coordinates the proposal's evaluation read
             accept = 0
             a = 0.0
             deposit_key = key
@@ -515,11 +529,12 @@ class ChainPool:
                     trace_mode = DEPOSIT
                     traced = deposit_w.max() > 0.0
                 if traced:
-                    result, _ = model.trace(self.source, trace_key, c, trace_mode, deposit_w, deposit_t)
+                    result, n_read = model.trace(self.source, trace_key, c, trace_mode, deposit_w, deposit_t)
                     if visit:
                         t_new = result
                     elif phase == 0:
                         t_new = result
+                        read = n_read
                         accept, a = self._decide(c, level, move, mode % MODE_BITS == SUFFIX_MODE, s, t_new, state)
                         if ti.static(self.n_blocks > 1):
                             if move > 0 and mode % MODE_BITS == MUTATION_MODE:
@@ -550,7 +565,7 @@ class ChainPool:
                     self.pending[s] = zero_w
                 continue
             if accept:
-                self._store(s, key, t_new)
+                self._store(s, key, t_new, read)
                 if ti.static(self.uniform_estimate):
                     if move == 0:
                         p = self.pending[s]
@@ -682,7 +697,7 @@ class ChainPool:
                 ready = hits >= ti.static(self.bootstrap_hits) or (bootstrap_over and hits > 0)
                 if not self.fresh[s] and ready:
                     self._store(s, ti.math.uvec4(s, self.reservoir_key[c, level], level, UNIFORM_MODE),
-                                self.reservoir_T[c, level])
+                                self.reservoir_T[c, level], self.dims)
                     self.fresh[s] = 1
                     self.reservoir_hits[c, level] = -1 << 30      # seeded: the reservoir is spent
                     ti.atomic_add(self.counters[level, SEEDED_RESAMPLED], 1)
@@ -727,13 +742,18 @@ class ChainPool:
             self.pending[s] = p
 
     @ti.func
-    def _store(self, s, key, t_new):
-        """Slot s takes the proposal named by key (its pending weight was deposited). Every
-        coordinate is stored, so that a state's path is fixed even where its evaluation
-        stopped early (the visibility probe stops at the first accepted vertex)."""
+    def _store(self, s, key, t_new, read):
+        """Slot s takes the proposal named by key (its pending weight was deposited), whose
+        evaluation read `read` coordinates. Every coordinate is stored, so that a state's path
+        is fixed even where its evaluation stopped early (the visibility probe stops at the
+        first accepted vertex); with store_read the ones read and the last."""
         self.adopted[s] = 0
-        for d in range(self.dims):
+        n = self.dims
+        if ti.static(self.store_read):
+            n = ti.min(ti.max(read, 1), self.dims)     # ell > 0 marks a slot that holds a state
+            self.u[s, self.dims - 1] = self.source.get(key, self.dims - 1)
+        for d in range(n):
             self.u[s, d] = self.source.get(key, d)
-        self.ell[s] = self.dims
+        self.ell[s] = n
         self.T[s] = t_new
         self.pending[s] = ti.Vector([0.0] * self.n_weights)

@@ -2,6 +2,7 @@
 order that makes connections deterministic."""
 import taichi as ti
 
+from ..runtime import serial_loop
 from .fields import FieldGroup
 from .vcm_mis import PathVertex
 
@@ -60,19 +61,24 @@ class SubpathVertices:
                           length=self.length[slot], bsdf=self.bsdf[slot], dvcm=self.dvcm[slot], dvc=self.dvc[slot],
                           dvm=self.dvm[slot])
 
+    def clear(self, n_paths: int):
+        self._clear(n_paths, serial_loop(n_paths))
+
     @ti.kernel
-    def clear(self, n_paths: ti.i32):
-        self.clear_paths(n_paths)
+    def _clear(self, n_paths: ti.i32, serial: ti.template()):
+        self.clear_paths(n_paths, serial)
 
     @ti.func
-    def clear_paths(self, n_paths: ti.i32):
-        """Empty the store for paths [0, n_paths) (a caller's kernel may do this in its own launch)."""
+    def clear_paths(self, n_paths: ti.i32, serial: ti.template()):
+        """Empty the store for paths [0, n_paths) (a caller's kernel may do this in its own
+        launch); serial: runtime.serial_loop(n_paths)."""
         self.count[None] = 0
+        ti.loop_config(serialize=serial)
         for i in range(n_paths):
             self.path_count[i] = 0
 
     @ti.kernel
-    def _finish(self, n_paths: ti.i32):
+    def _finish(self, n_paths: ti.i32, serial: ti.template()):
         """Path starts (a serial prefix sum), then the order and the valid flags, in one
         launch (the top-level loops run one after the other)."""
         ti.loop_config(serialize=True)
@@ -85,10 +91,12 @@ class SubpathVertices:
         # sized for the most camera subpaths per pixel its balance may pick (a loop over the
         # whole capacity was half of this kernel's time at 64x64).
         n = self.count[None]
+        ti.loop_config(serialize=serial)
         for slot in range(n):
             self.order[self.path_start[self.path[slot]] + self.index[slot]] = slot
             self.valid[slot] = 1
 
     def finish(self, n_paths: int):
-        """After the light pass: path order, and which slots hold a vertex (for the grid)."""
-        self._finish(n_paths)
+        """After the light pass: path order, and which slots hold a vertex (for the grid).
+        Serial for few paths (runtime.serial_loop; a path holds a few vertices)."""
+        self._finish(n_paths, serial_loop(n_paths))

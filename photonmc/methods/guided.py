@@ -265,8 +265,7 @@ class GuidedPhotons(Sppm):
         n_p = self._steps_this_pass()
         self._measurement_points(it)
         self._prepare_targets()
-        self.pool.begin_pass(self)
-        self.pool.run(self, self.seed_u32, it, n_p)
+        self.pool.run_pass(self, self.seed_u32, it, n_p)
         tallies = self.pool.tallies()
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
@@ -302,7 +301,7 @@ class GuidedPhotons(Sppm):
 
     def _steps_this_pass(self) -> int:
         """At least --photons, and enough that every chain meets ~REGENERATIONS visible uniform
-        proposals: the pass records a chain only after its first one (ChainPool.begin_pass),
+        proposals: the pass records a chain only after its first one (ChainPool.run_pass),
         so a pass too short for that wastes work. Uses the last pass's visible fraction; after a
         pass that found nothing visible, the next one is twice as long. Ladders, which discard
         their first half (LADDER_BURN_IN), run at least MIN_STEPS_PER_LADDER steps."""

@@ -197,7 +197,7 @@ class Mbe(Vcm):
                               bootstrap=BOOTSTRAP_FRACTION, bootstrap_hits=BOOTSTRAP_HITS,
                               burn_in=LADDER_BURN_IN, large_step=self.large_step,
                               base_records_in_burn_in=bool(opts["base_in_burn_in"]),
-                              warm_start=bool(opts["warm_start"]))
+                              warm_start=bool(opts["warm_start"]), store_read=True)
         w, h, c = dscene.width, dscene.height, self.n_chains
         f = FieldGroup("mbe-chains")
         self.visit_mode = f.scalar(ti.i32, c)
@@ -294,7 +294,9 @@ class Mbe(Vcm):
         leave a ladder fewer than REGENERATIONS visible uniform proposals (twice the last
         length after a pass that found none), at most MAX_PASS_FACTOR x --light-paths. The
         pass's light subpath count N_L is this length: the MIS counts and normalisations
-        follow it."""
+        follow it. (A pass that grew toward the balance's n* where K is 1 ran away on the
+        caustic: 4096 -> 45k steps, RMSE 2.6x: V_p N_L grows with N_L, chains' records being
+        correlated over a pass, and the radius, shrinking per pass, stayed large; docs/mbe.md.)"""
         n = self.n_light
         if self.iterations > 0:
             b0 = self.b_last[0]
@@ -327,7 +329,7 @@ class Mbe(Vcm):
         # A pixel's estimate is the mean over its K subpaths: merging at each is 1/K of it.
         vm_normalization = 1.0 / (PI * self.radius ** 2 * steps * k)
         self._begin_iteration(self.store, eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2, n_subpaths,
-                              vm_normalization, ratio, 1.0 / steps)
+                              vm_normalization, ratio, 1.0 / steps, runtime.serial_loop(n_subpaths))
         while True:
             # Compiled without Taichi's whole-kernel CSE, like the chain kernel (kernels/mcmc.py):
             # 0.6-1 s less to the first image, about 0.5 % of an iteration (docs/performance.md).
@@ -344,8 +346,7 @@ class Mbe(Vcm):
         self.vertices_sum += n
         self.store.finish(n_subpaths)
         self.grid.build(self.store.p, self.radius, self.store.valid, n)
-        self.pool.begin_pass(self.chain_model)
-        self.pool.run(self.chain_model, self.seed_u32, it, steps)
+        self.pool.run_pass(self.chain_model, self.seed_u32, it, steps)
         tallies = self.pool.tallies(extra=(self.light_counters,))
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
@@ -480,6 +481,7 @@ class Mbe(Vcm):
             product += weight * h * hu
         # Then the chains' splats, at their levels' final scales (s0, s1), and the uniform
         # proposals' (su) join the frame, which joins the film as one sample of every pixel.
+        ti.loop_config(serialize=ti.static(runtime.serial_loop(self.n_pixels)))
         for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
             # each level's two halves summed exactly (fixed point) before the scale
             total = ti.cast(self.light_frame[0, y, x] + self.light_frame[1, y, x], ti.f64) * s0 \
@@ -497,11 +499,11 @@ class Mbe(Vcm):
     @ti.kernel
     def _begin_iteration(self, store: ti.template(), eta: ti.f32, inv_eta: ti.f32, pixels: ti.f32, kappa: ti.f32,
                          r2: ti.f32, n_subpaths: ti.i32, vm_normalization: ti.f32, pairing: ti.f32,
-                         inv_steps: ti.f32):
+                         inv_steps: ti.f32, serial: ti.template()):
         """The iteration's MIS constants, subpath count and normalisations, and the emptied
         camera-vertex store, in one launch (each field write from Python, and each launch,
         costs host time)."""
-        store.clear_paths(n_subpaths)
+        store.clear_paths(n_subpaths, serial)
         self.consts[None] = ti.Vector([eta, inv_eta, pixels, kappa, r2])
         self.n_subpaths[None] = n_subpaths
         self._norms[None] = ti.Vector([vm_normalization, pairing, inv_steps])
