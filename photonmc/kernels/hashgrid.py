@@ -48,10 +48,11 @@ class HashGrid:
         slots = 1
         while slots < 2 * count and slots < self.table_size:
             slots *= 2
-        self._bounds(pos, radius, valid, count, slots)
-        self._count(pos, radius, valid, count)
+        serial = serial_loop(slots)          # few points: the loops on the launching thread
+        self._bounds(pos, radius, valid, count, slots, serial)
+        self._count(pos, radius, valid, count, serial)
         self._prefix_sum(slots)
-        self._fill(pos, radius, valid, count)
+        self._fill(pos, radius, valid, count, serial)
 
     @ti.func
     def cell_of(self, x):
@@ -62,12 +63,15 @@ class HashGrid:
         return ti.cast(_hash(cell) & ti.cast(self.slot_mask[None], ti.u32), ti.i32)
 
     @ti.kernel
-    def _bounds(self, pos: ti.template(), radius: ti.template(), valid: ti.template(), count: ti.i32, slots: ti.i32):
+    def _bounds(self, pos: ti.template(), radius: ti.template(), valid: ti.template(), count: ti.i32, slots: ti.i32,
+                serial: ti.template()):
         self.max_radius[None] = 0.0
         self.slot_mask[None] = slots - 1
+        ti.loop_config(serialize=serial)
         for i in range(count):
             if valid[i]:
                 ti.atomic_max(self.max_radius[None], radius[i])
+        ti.loop_config(serialize=serial)
         for h in range(slots):
             self.cell_count[h] = 0
             self.cell_fill[h] = 0
@@ -93,8 +97,10 @@ class HashGrid:
         return slots, n
 
     @ti.kernel
-    def _count(self, pos: ti.template(), radius: ti.template(), valid: ti.template(), count: ti.i32):
+    def _count(self, pos: ti.template(), radius: ti.template(), valid: ti.template(), count: ti.i32,
+               serial: ti.template()):
         self.cell_size[None] = ti.max(2.0 * self.max_radius[None], 1e-30)
+        ti.loop_config(serialize=serial)
         for i in range(count):
             if valid[i]:
                 slots, n = self._slots_of(pos[i], radius[i])
@@ -117,7 +123,9 @@ class HashGrid:
                 self.cell_start[h] = self.cell_start[h - 1] + self.cell_count[h - 1]
 
     @ti.kernel
-    def _fill(self, pos: ti.template(), radius: ti.template(), valid: ti.template(), count: ti.i32):
+    def _fill(self, pos: ti.template(), radius: ti.template(), valid: ti.template(), count: ti.i32,
+              serial: ti.template()):
+        ti.loop_config(serialize=serial)
         for i in range(count):
             if valid[i]:
                 slots, n = self._slots_of(pos[i], radius[i])
