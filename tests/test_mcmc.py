@@ -287,15 +287,17 @@ def test_one_move_per_step_keeps_every_target(levels):
     assert abs(uniform_share - 0.3) < 0.005
 
 
-def test_states_that_keep_only_the_coordinates_they_read_keep_every_target():
+@pytest.mark.parametrize("seeding", ["resample", "copy"])
+def test_states_that_keep_only_the_coordinates_they_read_keep_every_target(seeding):
     """store_read (mbe's states keep the coordinates their light subpath read, and the pairing
     coordinate): the toy's z is stored only by states with x < 0.5, so a mutation from x >= 0.5
     into x < 0.5 draws z afresh, and the upper levels' targets depend on it. Every level must
     still sample its target (z's factor has mean 1, so the exact bins are the plain toy's),
-    with one move per step and resampled starts as mbe runs them."""
+    with one move per step and resampled starts as mbe runs them, or upper levels started as
+    copies of the level below (then burnt in), which copy the stored coordinates."""
     out = {}
-    hist, b, last, _ = run_toy(3, passes=4, steps_per_chain=800, seeding="resample", large_step=0.3, lazy=True,
-                               out=out)
+    hist, b, last, _ = run_toy(3, passes=4, steps_per_chain=800, seeding=seeding, large_step=0.3, lazy=True,
+                               burn_in=0.5 if seeding == "copy" else 0.0, out=out)
     assert_every_level_samples_its_target(hist, b, exact_bins("strip", 3), rtol=0.02)
     assert last["counters"][1, ACCEPTED] > 0 and last["counters"][2, ACCEPTED] > 0
     # Each stored state is the path it was evaluated as: its targets from the stored

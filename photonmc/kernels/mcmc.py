@@ -708,6 +708,8 @@ class ChainPool:
         n = self.ell[src]
         for d in range(n):
             self.u[dst, d] = self.u[src, d]
+        if ti.static(self.store_read):
+            self.u[dst, self.dims - 1] = self.u[src, self.dims - 1]      # stored beyond ell
         self.ell[dst] = n
         self.T[dst] = self.T[src]
         self.fresh[dst] = 1
