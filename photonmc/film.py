@@ -7,9 +7,9 @@ import numpy as np
 import taichi as ti
 
 from .kernels.batch import fill_fields
-from .runtime import serial_loop
 from .kernels.fields import FieldGroup
 from .kernels.sampling import luminance
+from .runtime import serial_loop
 
 
 @ti.data_oriented

@@ -3,8 +3,9 @@ reads is its finest trusted cell's hits per unit area per pass, checked against 
 computation over explicit (level, cell) keys. Hash collisions (rare at these sizes) merge
 two cells' statistics, so a small share of points may differ; the checks allow 1 %."""
 import numpy as np
+import pytest
 
-from photonmc.methods.clusters import HitDensityClusters, _morton
+from photonmc.methods.clusters import MORTON_BITS, HitDensityClusters, _morton
 
 LEVELS = 10
 
@@ -84,3 +85,11 @@ def test_a_point_reads_the_finest_cell_with_enough_samples():
     print(f"{agree.mean():.4f} of points agree; levels read {np.bincount(chosen + 1)[1:]}")
     assert agree.mean() > 0.99
     assert len(np.unique(chosen)) >= 3 and (chosen >= 0).all()     # several levels are read
+
+
+def test_more_levels_than_the_morton_codes_hold_are_refused():
+    """The finest level's cells are Morton codes of MORTON_BITS bits per axis: a level beyond
+    them would alias cells instead of failing."""
+    HitDensityClusters(np.zeros(3), np.ones(3), 16, levels=MORTON_BITS + 1)
+    with pytest.raises(ValueError, match="levels"):
+        HitDensityClusters(np.zeros(3), np.ones(3), 16, levels=MORTON_BITS + 2)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 _PRIMES = np.array([73856093, 19349663, 83492791], np.int64)
+MORTON_BITS = 10      # bits per axis of _morton's codes: the finest level has 2^(levels - 1) cells per axis
 
 
 def _morton(cells: np.ndarray) -> np.ndarray:
@@ -26,7 +27,7 @@ def _morton(cells: np.ndarray) -> np.ndarray:
     x, y and z interleaved, so that the code of a cell at a coarser level is a prefix."""
     code = np.zeros(len(cells), np.int64)
     for axis in range(3):
-        v = cells[:, axis].astype(np.int64) & 0x3FF
+        v = cells[:, axis].astype(np.int64) & ((1 << MORTON_BITS) - 1)
         v = (v | (v << 16)) & 0x030000FF
         v = (v | (v << 8)) & 0x0300F00F
         v = (v | (v << 4)) & 0x030C30C3
@@ -42,6 +43,8 @@ class HitDensityClusters:
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
         self.lo = lo
         self.size = float(max((hi - lo).max(), 1e-12)) * 1.0001
+        if not 1 <= levels <= MORTON_BITS + 1:
+            raise ValueError(f"levels must be 1 to {MORTON_BITS + 1} (Morton codes of {MORTON_BITS} bits per axis)")
         self.levels = levels
         self.min_samples = float(min_samples)
         bits = int(np.clip(np.ceil(np.log2(max(8 * n_points * levels, 1024))), 10, 22))

@@ -35,6 +35,8 @@ import math
 
 import numpy as np
 
+from ..errors import SettingsError
+
 MAX_CHANGE = 2.0         # photons per pass change by at most this factor per iteration
 MAX_PER_PIXEL = 64       # at most this many photons per pixel per pass (iteration granularity)
 HISTORY = 256            # iterations the estimates look back over (bounded work per iteration)
@@ -169,7 +171,6 @@ def uniform_weight_option(value) -> tuple[bool, float]:
     variance from the even and odd ladders) or a fixed share in [0, 1] of the uniform
     proposals' own estimate (0: the chains' estimate alone; 1: the uniform proposals' alone).
     Returns (auto, the fixed share or 0)."""
-    from ..errors import SettingsError
     if value is None or value == "auto":
         return True, 0.0
     try:

@@ -431,7 +431,6 @@ class Sppm(Method):
                 self.half_chains[i] = chains
                 self.half_uniform[i] = uniform
 
-
     @ti.kernel
     def _effort_sums(self):
         """Sums over pixels for the effort balance, in one fixed order (a serial loop), so
