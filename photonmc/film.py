@@ -10,9 +10,10 @@ from .kernels.batch import fill_fields
 from .kernels.fields import FieldGroup
 from .kernels.sampling import luminance
 from .runtime import serial_loop
+from .taichi_frontend import data_oriented
 
 
-@ti.data_oriented
+@data_oriented
 class Film:
     def __init__(self, width: int, height: int):
         self.width, self.height = width, height
@@ -65,7 +66,7 @@ FIXED_STEPS = 4294967296.0      # 2^32 fixed-point steps per radiance_scale
 FIXED_LIMIT = 2.0e9             # in radiance_scale units: i64 holds 2^31 of them with room to sum
 
 
-@ti.data_oriented
+@data_oriented
 class SplatFilm:
     """A film that samples may reach at any pixel (light tracing, merging), deterministically.
 

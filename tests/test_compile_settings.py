@@ -185,3 +185,61 @@ def test_compile_errors_name_the_same_line_with_the_memo():
         messages.append(str(raised.value))
     assert messages[0] == messages[1]
     assert "undefined_name" in messages[0] and "test_compile_settings.py" in messages[0]
+
+
+def test_data_oriented_lookup_returns_what_taichis_returns():
+    """photonmc/taichi_frontend.py's data_oriented: for plain attributes (fields, numbers,
+    host methods, ti.funcs, class constants, inherited ones) Python's own lookup, the same
+    object Taichi's lookup gives; kernels, properties and static methods through Taichi's own
+    lookup, so that kernels (also inherited and overridden ones) still launch as methods."""
+    import taichi as ti
+
+    from photonmc.taichi_frontend import _plain_lookup, data_oriented
+
+    @data_oriented
+    class Base:
+        CONSTANT = 3
+
+        def __init__(self):
+            self.values = ti.field(ti.f32, 4)
+            self.scale = 2.0
+
+        def host(self):
+            return self.scale
+
+        @ti.func
+        def twice(self, x):
+            return 2.0 * x
+
+        @ti.kernel
+        def fill(self, v: ti.f32):
+            for i in self.values:
+                self.values[i] = self.twice(v) * self.scale
+
+        @property
+        def total(self):
+            return float(self.values.to_numpy().sum())
+
+        @staticmethod
+        def helper():
+            return "static"
+
+    @data_oriented
+    class Derived(Base):
+        @ti.kernel
+        def fill_more(self, v: ti.f32):
+            for i in self.values:
+                self.values[i] = v + self.CONSTANT
+
+    d = Derived()
+    taichi_lookup = Derived._taichi_getattribute
+    for name in ("values", "scale", "CONSTANT", "host", "twice", "__init__"):
+        assert _plain_lookup(Derived, name)
+        ours, theirs = getattr(d, name), taichi_lookup(d, name)
+        assert ours is theirs or ours == theirs
+    for name in ("fill", "fill_more", "total", "helper"):
+        assert not _plain_lookup(Derived, name)
+    d.fill(1.5)
+    assert d.total == 4 * 2 * 1.5 * 2.0
+    d.fill_more(1.0)
+    assert d.total == 4 * 4.0 and d.helper() == "static" and d.host() == 2.0

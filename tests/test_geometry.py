@@ -1,4 +1,6 @@
 """BVH structure, and ray casting (BVH + spheres) against float64 brute force."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -214,4 +216,38 @@ def test_batched_fills_uploads_and_downloads_match_one_field_at_a_time():
         assert (f.to_numpy() == v).all() and np.array_equal(got, f.to_numpy())
     with pytest.raises(ValueError, match="an array of 3 values for a field of 21"):
         batch.upload_fields([(fields[1], np.zeros(3, np.int32))])
+    g.release()
+
+
+def test_a_prepared_reader_reads_what_to_numpy_reads():
+    """kernels/batch.py's FieldReader (a chain pass's tallies): integer and float fields,
+    scalars and vectors, interleaved in its list, read in its own launch and by `copy` in a
+    caller's kernel, each as field.to_numpy reads it (shape, dtype, every bit, including
+    int64 values past 2^53 and u32 ones past 2^31)."""
+    import taichi as ti
+    from photonmc.kernels import batch
+    from photonmc.kernels.fields import FieldGroup
+    rng = np.random.default_rng(11)
+    g = FieldGroup("reader-test")
+    fields = [g.scalar(ti.i64, (3, 4)), g.vector(3, ti.f32, 5), g.scalar(ti.u32, 6), g.scalar(ti.f64, (2, 2)),
+              g.vector(2, ti.i32, 3)]
+    g.finalize()
+    arrays = [rng.integers(-2 ** 62, 2 ** 62, (3, 4)), rng.normal(size=(5, 3)).astype(np.float32),
+              rng.integers(2 ** 31, 2 ** 32 - 1, 6).astype(np.uint32), rng.normal(size=(2, 2)),
+              rng.integers(-9, 9, (3, 2)).astype(np.int32)]
+    for f, a in zip(fields, arrays):
+        f.from_numpy(a)
+    reader = batch.FieldReader(fields)
+
+    @ti.kernel
+    def caller(ints: ti.types.ndarray(), floats: ti.types.ndarray()):
+        reader.copy(ints, floats)
+
+    ints, floats = reader.arrays()
+    caller(ints, floats)
+    for values in (reader.read(), reader.unpack(ints, floats)):
+        for f, a, got in zip(fields, arrays, values):
+            assert got.dtype == a.dtype and got.shape == a.shape and np.array_equal(got, a)
+    with pytest.raises(ValueError, match="scalar and vector fields of i32, i64, u32, f32 or f64"):
+        batch.FieldReader([fields[0], SimpleNamespace(dtype=ti.u8, shape=(2,))])
     g.release()

@@ -120,8 +120,7 @@ def run_toy(levels, chains=GROUPS * 16, passes=3, steps_per_chain=1600, kind="st
     last = None
     sum_uniform = 0
     for it in range(passes):
-        pool.run_pass(model, seed, it, chains * steps_per_chain)
-        last = pool.tallies()
+        last = pool.run_pass(model, seed, it, chains * steps_per_chain)
         sum_uniform += int(last["counters"][0, 2])
         b_sum += pool.normalisations(last)
         if adapt:

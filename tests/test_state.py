@@ -77,7 +77,7 @@ def test_a_state_that_misses_part_of_the_method_does_not_resume_straight(monkeyp
     resumed image differs."""
     from photonmc.kernels.mcmc import ChainPool
     straight = rendered(job("visibility"), 6)
-    monkeypatch.setattr(ChainPool, "TRANSIENT", ("u", "T", "theta"), raising=False)
+    monkeypatch.setattr(ChainPool, "TRANSIENT", ChainPool.TRANSIENT + ("u", "T", "theta"), raising=False)
     half = rendered(job("visibility"), 3)
     p, _ = resume(half)
     for _ in range(3):

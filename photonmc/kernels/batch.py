@@ -14,6 +14,7 @@ import numpy as np
 import taichi as ti
 
 from ..runtime import serial_loop
+from ..taichi_frontend import data_oriented
 
 NP_DTYPES = {ti.f32: np.float32, ti.f64: np.float64, ti.i32: np.int32, ti.i64: np.int64, ti.u32: np.uint32}
 
@@ -156,6 +157,84 @@ def upload_fields(pairs) -> None:
             _upload_batch(tuple(f for f, _ in batch), tuple(plan), data, offset, serial_loop(offset))
 
 
+INTEGER_DTYPES = (ti.i32, ti.i64, ti.u32)
+FLOAT_DTYPES = (ti.f32, ti.f64)
+
+
+@data_oriented
+class FieldReader:
+    """field.to_numpy() for a fixed list of scalar and vector fields, prepared once (a chain
+    pass's tallies): integer fields read as int64 and float fields as float64 (exact) into
+    two arrays, by `copy` at the top level of a caller's kernel, so that the caller's launch
+    also brings its tallies back, or by `read` in a launch of its own. Prepared, a read
+    passes one object and two arrays where download_fields passes every field and its plan
+    as template arguments, whose extraction is most of a small launch's host time."""
+
+    def __init__(self, fields):
+        self.fields = tuple(fields)
+        for f in self.fields:
+            if (isinstance(f, ti.MatrixField) and f.m != 1) or f.dtype not in INTEGER_DTYPES + FLOAT_DTYPES:
+                raise ValueError("FieldReader reads scalar and vector fields of i32, i64, u32, f32 or f64")
+        self.int_fields = tuple(f for f in self.fields if f.dtype in INTEGER_DTYPES)
+        self.float_fields = tuple(f for f in self.fields if f.dtype in FLOAT_DTYPES)
+        self.int_plan, self.n_ints = self._plan(self.int_fields)
+        self.float_plan, self.n_floats = self._plan(self.float_fields)
+        self.serial = serial_loop(max(self.n_ints, self.n_floats))
+        # (array 0 ints / 1 floats, start, end, shape, numpy dtype) per field, in `fields` order
+        self._slices = []
+        taken = [0, 0]
+        for f in self.fields:
+            a = 0 if f.dtype in INTEGER_DTYPES else 1
+            start, n = (self.int_plan, self.float_plan)[a][taken[a]]
+            taken[a] += 1
+            self._slices.append((a, start, start + n, numpy_shape(f), NP_DTYPES[f.dtype]))
+
+    @staticmethod
+    def _plan(fields):
+        plan, offset = [], 0
+        for f in fields:
+            plan.append((offset, _size(f)))
+            offset += _size(f)
+        return tuple(plan), offset
+
+    def arrays(self):
+        """Two arrays for `copy` or `read` to fill: (int64, float64)."""
+        return np.empty(max(self.n_ints, 1), np.int64), np.empty(max(self.n_floats, 1), np.float64)
+
+    def unpack(self, ints, floats) -> list:
+        """The fields' values from the arrays `copy` filled, as field.to_numpy() gives them
+        (views of the arrays where the dtype is theirs)."""
+        data = (ints, floats)
+        return [data[a][start:end].reshape(shape).astype(dtype, copy=False)
+                for a, start, end, shape, dtype in self._slices]
+
+    def read(self) -> list:
+        ints, floats = self.arrays()
+        self._read(ints, floats)
+        return self.unpack(ints, floats)
+
+    @ti.kernel
+    def _read(self, ints: ti.types.ndarray(), floats: ti.types.ndarray()):
+        self.copy(ints, floats)
+
+    @ti.func
+    def copy(self, ints: ti.template(), floats: ti.template()):
+        """Every field's values into the arrays (call at a kernel's top level)."""
+        if ti.static(self.n_ints > 0):
+            ti.loop_config(serialize=ti.static(self.serial))
+            for j in range(self.n_ints):
+                for k in ti.static(range(len(self.int_fields))):
+                    if ti.static(self.int_plan[k][0]) <= j < ti.static(self.int_plan[k][0] + self.int_plan[k][1]):
+                        ints[j] = ti.cast(_get_flat(self.int_fields[k], j - ti.static(self.int_plan[k][0])), ti.i64)
+        if ti.static(self.n_floats > 0):
+            ti.loop_config(serialize=ti.static(self.serial))
+            for j in range(self.n_floats):
+                for k in ti.static(range(len(self.float_fields))):
+                    if ti.static(self.float_plan[k][0]) <= j < ti.static(self.float_plan[k][0] + self.float_plan[k][1]):
+                        floats[j] = ti.cast(_get_flat(self.float_fields[k], j - ti.static(self.float_plan[k][0])),
+                                            ti.f64)
+
+
 def numpy_shape(field) -> tuple:
     """The shape field.to_numpy() returns, without compiling its kernel (kept, as _size)."""
     shape = field.__dict__.get("_photonmc_shape")
@@ -176,14 +255,17 @@ def download_fields(fields) -> list:
             out[i] = np.zeros(numpy_shape(f), NP_DTYPES[f.dtype])
         else:
             by_dtype.setdefault(f.dtype, []).append((f, i))
+    batches = []           # (fields, plan, data)
     for dtype, items in by_dtype.items():
         for batch in _batches(items):
             plan, offset = [], 0
             for f, _ in batch:
                 plan.append((offset, _size(f)))
                 offset += _size(f)
-            data = np.empty(offset, NP_DTYPES[dtype])
-            _download_batch(tuple(f for f, _ in batch), tuple(plan), data, offset, serial_loop(offset))
-            for (f, i), (start, n) in zip(batch, plan):
-                out[i] = data[start:start + n].reshape(numpy_shape(f)).copy()
+            batches.append((batch, tuple(plan), np.empty(offset, NP_DTYPES[dtype])))
+    for batch, plan, data in batches:
+        _download_batch(tuple(f for f, _ in batch), plan, data, data.size, serial_loop(data.size))
+    for batch, plan, data in batches:
+        for (f, i), (start, n) in zip(batch, plan):
+            out[i] = data[start:start + n].reshape(numpy_shape(f)).copy()
     return out

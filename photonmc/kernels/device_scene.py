@@ -17,6 +17,7 @@ from ..scene.scene import DIELECTRIC, Scene
 from . import bsdf as bsdf_mod
 from .fields import FieldGroup
 from .sampling import INV_PI, cosine_hemisphere, onb, to_world, uniform_sphere, uniform_triangle, vec3
+from ..taichi_frontend import data_oriented
 
 Hit = ti.types.struct(t=ti.f32, kind=ti.i32, prim=ti.i32, b1=ti.f32, b2=ti.f32)
 Surface = ti.types.struct(p=vec3, ng=vec3, ns=vec3, material=ti.i32, emitter=ti.i32, light_pdf_a=ti.f32)
@@ -35,7 +36,7 @@ STACK_SIZE = 32     # the SAH build has depth ~18 at 80k triangles; deeper trees
 UNBOUNDED_DEPTH = 1 << 30
 
 
-@ti.data_oriented
+@data_oriented
 class DeviceScene:
     def __init__(self, scene: Scene):
         self.scene = scene

@@ -12,6 +12,7 @@ import taichi as ti
 
 from ..runtime import serial_loop
 from .fields import FieldGroup
+from ..taichi_frontend import data_oriented
 
 
 @ti.func
@@ -20,7 +21,7 @@ def _hash(c) -> ti.u32:
         ^ (ti.cast(c.z, ti.u32) * ti.u32(83492791))
 
 
-@ti.data_oriented
+@data_oriented
 class HashGrid:
     def __init__(self, n_points: int, entries_per_point: int = 8, name: str = "hash-grid"):
         self.n_points = n_points
@@ -45,14 +46,20 @@ class HashGrid:
         """pos (vec3), radius (f32), valid (i32) are fields indexed like the points; only the
         first `count` points (default: all) are read."""
         count = self.n_points if count is None else int(count)
-        slots = 1
-        while slots < 2 * count and slots < self.table_size:
-            slots *= 2
+        slots = self.table_slots(count)
         serial = serial_loop(slots)          # few points: the loops on the launching thread
         self._bounds(pos, radius, valid, count, slots, serial)
         self._count(pos, radius, valid, count, serial)
         self._prefix_sum(slots)
         self._fill(pos, radius, valid, count, serial)
+
+    def table_slots(self, count: int) -> int:
+        """The slots a build of `count` points uses: the smallest power of two >= 2 count,
+        at most the table (slots_for in a kernel)."""
+        slots = 1
+        while slots < 2 * count and slots < self.table_size:
+            slots *= 2
+        return slots
 
     @ti.func
     def cell_of(self, x):
@@ -142,7 +149,7 @@ class HashGrid:
         return first, first + self.cell_count[h]
 
 
-@ti.data_oriented
+@data_oriented
 class PointGrid(HashGrid):
     """Hash grid over points, queried with balls of one radius r (VCM's light vertices).
 
@@ -168,18 +175,29 @@ class PointGrid(HashGrid):
         smallest power of two >= 2 count of its slots (as HashGrid.build): mbe's store is
         sized for the most camera subpaths per pixel its effort balance may choose."""
         count = self.n_points if count is None else int(count)
-        slots = 1
-        while slots < 2 * count and slots < self.table_size:
-            slots *= 2
+        slots = self.table_slots(count)
         self._build(pos, valid, radius, slots, count, serial_loop(slots))
+
+    @ti.func
+    def slots_for(self, count):
+        """table_slots(count), in a kernel."""
+        slots = 1
+        while slots < 2 * count and slots < ti.static(self.table_size):
+            slots *= 2
+        return slots
 
     @ti.kernel
     def _build(self, pos: ti.template(), valid: ti.template(), radius: ti.f32, slots: ti.i32, count: ti.i32,
                serial: ti.template()):
+        self.build_points(pos, valid, radius, slots, count, serial)
+
+    @ti.func
+    def build_points(self, pos: ti.template(), valid: ti.template(), radius, slots, count, serial: ti.template()):
         """One launch: the kernel's top-level loops run one after the other (clear, count,
         prefix sum, fill), and every launch costs tens of microseconds on the host, a few per
-        cent of a small image's iteration (docs/performance.md). serial (few points): the
-        loops run on the launching thread (runtime.serial_loop)."""
+        cent of a small image's iteration (docs/performance.md); a caller's kernel may build
+        in its own launch (methods/vcm.py's _index_vertices). serial (few points): the loops
+        run on the launching thread (runtime.serial_loop)."""
         self.max_radius[None] = radius
         self.cell_size[None] = ti.max(2.0 * radius, 1e-30)
         self.slot_mask[None] = slots - 1

@@ -60,8 +60,9 @@ import taichi as ti
 
 from .. import runtime
 from . import rng
-from .batch import download_fields, fill_fields, upload_fields
+from .batch import FieldReader, fill_fields, upload_fields
 from .fields import FieldGroup
+from ..taichi_frontend import data_oriented
 
 # Per-level counters (int64, atomics, so they are exact and order-independent).
 # MUTATIONS/ACCEPTED count the perturbations (theta's statistics), SUFFIX_* the suffix moves.
@@ -94,7 +95,7 @@ PROBE, DEPOSIT = 0, 1
 STEPS = 2
 
 
-@ti.data_oriented
+@data_oriented
 class _ChainSource:
     """Coordinates of the path a key names: a fresh uniform proposal, a mutation of a slot's
     state (with its level's theta), or the slot's stored state. One source with a runtime mode,
@@ -132,6 +133,10 @@ class _ChainSource:
         return v
 
 
+def _field_size(f) -> int:
+    return int(np.prod(f.shape, dtype=np.int64))
+
+
 @ti.func
 def component(v: ti.template(), i):
     """v[i] for a runtime index i, without dynamic indexing (which the 1.7.4 compiler
@@ -167,8 +172,11 @@ def _chain_kernel_compilation():
     return runtime.advanced_optimization(False)
 
 
-@ti.data_oriented
+@data_oriented
 class ChainPool:
+    # The list of fields each pass clears (its fields are saved through their own attributes).
+    TRANSIENT = ("pass_tallies", "_readers", "_last_tallies")
+
     def __init__(self, n_chains: int, n_levels: int, dims: int, drop_failures: bool = False,
                  expected_values: bool = False, burn_in: float = 0.0, binary_base: bool = True,
                  seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8, large_step: float = 0.0,
@@ -280,6 +288,12 @@ class ChainPool:
         self.adopted = f.scalar(ti.i32, self.n_slots)
         f.finalize()
         self.fields = f
+        self._readers = {}          # FieldReaders of the tallies, by the caller's extra fields
+        self._last_tallies = None
+        # Cleared at the start of every pass (_clear_pass_tallies).
+        self.pass_tallies = (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.uniform_n,
+                             self.reservoir_sum, self.reservoir_hits, self.adopted) + \
+            ((self.block_counters,) if self.n_blocks > 1 else ())
         self.source = _ChainSource(self)
         self.stride = CPU_LADDER_STRIDE if ti.lang.impl.current_cfg().arch == ti.cpu else 1
         self.adapt_passes = np.zeros(n_levels, np.int64)
@@ -309,7 +323,7 @@ class ChainPool:
         upload_fields([(self.theta, self.theta_host)] +
                       ([(self.block_theta, self.block_theta_host)] if self.n_blocks > 1 else []))
 
-    def run_pass(self, model, seed: int, iteration: int, steps: int):
+    def run_pass(self, model, seed: int, iteration: int, steps: int, extra=()) -> dict:
         """One pass in one launch, each ladder on its own thread: its stored states re-evaluated
         (the target changed: new measurement points or camera subpaths, so every stored state
         is stale), `steps` chain steps in all spread over the ladders, then every pending
@@ -329,22 +343,33 @@ class ChainPool:
         +0.2 % with the first half discarded (docs/guiding.md). Level 0 alone (visibility)
         is exact from its first visible uniform proposal and needs none: with
         base_records_in_burn_in it records the whole pass and exchanges it with level 1 only
-        after the burn-in (mbe, docs/mbe.md)."""
-        fill_fields((f, 0) for f in (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.uniform_n,
-                                     self.reservoir_sum, self.reservoir_hits, self.adopted) +
-                    ((self.block_counters,) if self.n_blocks > 1 else ()))
+        after the burn-in (mbe, docs/mbe.md).
+
+        Returns the pass's tallies (tallies()), read back by the same launch, with the
+        caller's `extra` fields (out["extra"])."""
+        extra = tuple(extra)
+        key = tuple(id(f) for f in extra)
+        reader = self._readers.get(key)
+        if reader is None:
+            reader = self._readers[key] = FieldReader(
+                (self.counters, self.recorded, self.ratio, self.uniform_T, self.uniform_n) + extra +
+                ((self.block_counters,) if self.n_blocks > 1 else ()))
+        ints, floats = reader.arrays()
         with _chain_kernel_compilation():
             self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, self.large_step,
-                      self.mutation_probability)
+                      self.mutation_probability, reader, ints, floats)
+        self._last_tallies = self._tallies(reader.unpack(ints, floats), len(extra))
+        return self._last_tallies
 
-    def tallies(self, extra=()) -> dict:
-        """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l];
-        `extra` fields of the caller's are read in the same batch (out["extra"])."""
-        extra = tuple(extra)
-        c, rec, ratio, uniform_T, uniform_n, *rest = download_fields(
-            (self.counters, self.recorded, self.ratio, self.uniform_T, self.uniform_n) + extra +
-            ((self.block_counters,) if self.n_blocks > 1 else ()))
-        more, blocks = rest[:len(extra)], rest[len(extra):]
+    def tallies(self) -> dict:
+        """The last pass's figures (run_pass's result)."""
+        return self._last_tallies
+
+    def _tallies(self, values: list, n_extra: int) -> dict:
+        """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l], and
+        the caller's extra fields (out["extra"])."""
+        c, rec, ratio, uniform_T, uniform_n, *rest = values
+        more, blocks = rest[:n_extra], rest[n_extra:]
         rec_per_chain, rec = rec, rec.sum(axis=0)
         ratio = ratio.sum(axis=0)
         n_uniform = max(int(c[0, UNIFORM]), 1)
@@ -367,9 +392,12 @@ class ChainPool:
             b[level] = b[level - 1] * tallies["mean_ratio"][level - 1]
         return b
 
-    def adapt(self, tallies: dict, target_acceptance: float, uploads=()) -> None:
+    def adapt(self, tallies: dict, target_acceptance: float, uploads=(), upload: bool = True) -> None:
         """Adapt theta per level (and block) to this pass's acceptance. `uploads`: more
-        (field, array) pairs the caller writes after the pass, sent in the same batch."""
+        (field, array) pairs the caller writes after the pass, sent in the same batch.
+        upload=False (one mutation block only): theta_host changes and the caller writes it
+        to `theta` in a launch of its own before the next pass (write_theta), one launch
+        less per pass."""
         c = tallies["counters"]
         theta = self.theta_host
         for level in range(self.n_levels):
@@ -389,17 +417,29 @@ class ChainPool:
                         bt[level, b] = adapt_theta(float(bt[level, b]), bc[level, b, 1] / bc[level, b, 0],
                                                    target_acceptance, k)
             pairs.append((self.block_theta, bt))
-        upload_fields(pairs + list(uploads))
+        if upload:
+            upload_fields(pairs + list(uploads))
+        elif self.n_blocks > 1 or uploads:
+            raise ValueError("adapt(upload=False) leaves one theta per level to the caller, and no other uploads")
+
+    @ti.func
+    def write_theta(self, theta: ti.template()):
+        """theta (a vector of n_levels, theta_host's values) into the field, from a caller's
+        kernel (adapt(upload=False))."""
+        for level in ti.static(range(self.n_levels)):
+            self.theta[level] = theta[level]
 
     # -- kernels ------------------------------------------------------------------------
     @ti.kernel
     def _run(self, model: ti.template(), seed: ti.u32, iteration: ti.u32, steps: ti.i32, burn_in: ti.f32,
-             bootstrap: ti.f32, large_step: ti.f32, mutate: ti.f32):
+             bootstrap: ti.f32, large_step: ti.f32, mutate: ti.f32, reader: ti.template(), ints: ti.types.ndarray(),
+             floats: ti.types.ndarray()):
         """Per ladder: PROBE (visit every level's stored state once, _step) and the warm
         start, its share of `steps` chain steps (STEPS), DEPOSIT (visit every level's state
         again). large_step: this pass's probability of a uniform proposal (one move per
         step); mutate: the probability that a mutation is made (otherwise skipped, the state
         recorded again). The visits draw no random numbers."""
+        self._clear_pass_tallies()
         base = steps // self.n_chains
         extra = steps % self.n_chains
         for item in range(self.n_chains * ti.static(self.stride)):
@@ -426,6 +466,17 @@ class ChainPool:
                     if ti.static(self.warm_start):
                         if task == PROBE:
                             self._warm_start(c)
+        reader.copy(ints, floats)       # the tallies, back with this launch
+
+    @ti.func
+    def _clear_pass_tallies(self):
+        """The pass's tallies zeroed, in the chain kernel's own launch (a separate fill was a
+        launch and a batch of template arguments per pass, docs/performance.md): one loop
+        per field, run before the ladders' loop, serially where short (runtime.serial_loop)."""
+        for f in ti.static(self.pass_tallies):
+            ti.loop_config(serialize=ti.static(runtime.serial_loop(_field_size(f))))
+            for i in ti.grouped(ti.ndrange(*f.shape)):
+                f[i] = 0
 
     @ti.func
     def _warm_start(self, c):

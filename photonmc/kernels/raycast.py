@@ -5,9 +5,10 @@ import taichi as ti
 
 from .device_scene import MISS, TRIANGLE
 from .fields import FieldGroup
+from ..taichi_frontend import data_oriented
 
 
-@ti.data_oriented
+@data_oriented
 class RayLog:
     """Every ray DeviceScene.trace is asked for, up to `capacity`, in the order the threads
     reach them. Set as `dscene.ray_log` before the first kernel compiles."""
@@ -42,7 +43,7 @@ class RayLog:
         self.fields.release()
 
 
-@ti.data_oriented
+@data_oriented
 class RayCaster:
     def __init__(self, dscene):
         self.dscene = dscene

@@ -5,13 +5,14 @@ import taichi as ti
 from ..runtime import serial_loop
 from .fields import FieldGroup
 from .vcm_mis import PathVertex
+from ..taichi_frontend import data_oriented
 
 # Record (PathVertex and path/index), order and valid flags, point-grid entry, position and
 # table share: what one stored vertex costs, for the memory checks.
 BYTES_PER_STORED_VERTEX = 96 + 4 + 12 + 12
 
 
-@ti.data_oriented
+@data_oriented
 class SubpathVertices:
     """The iteration's subpath vertices (vcm: light subpaths, mbe: camera subpaths, `path`
     being the pixel): appended in any order, then ordered by (path, index along the path)
@@ -79,8 +80,13 @@ class SubpathVertices:
 
     @ti.kernel
     def _finish(self, n_paths: ti.i32, serial: ti.template()):
-        """Path starts (a serial prefix sum), then the order and the valid flags, in one
-        launch (the top-level loops run one after the other)."""
+        self.finish_paths(n_paths, self.count[None], serial)
+
+    @ti.func
+    def finish_paths(self, n_paths: ti.i32, n, serial: ti.template()):
+        """Path starts (a serial prefix sum), then the order and the valid flags of the first
+        n slots, in one launch (the top-level loops run one after the other; a caller's
+        kernel may do this in its own launch, methods/vcm.py's _index_vertices)."""
         ti.loop_config(serialize=True)
         for i in range(n_paths):
             if i == 0:
@@ -90,7 +96,6 @@ class SubpathVertices:
         # Only the slots in use: the grids read the first `count` only, and mbe's store is
         # sized for the most camera subpaths per pixel its balance may pick (a loop over the
         # whole capacity was half of this kernel's time at 64x64).
-        n = self.count[None]
         ti.loop_config(serialize=serial)
         for slot in range(n):
             self.order[self.path_start[self.path[slot]] + self.index[slot]] = slot

@@ -100,9 +100,10 @@ class EffortBalance:
         # caustic), and a plain mean would let that one event steer the rest of the render.
         # V_p: a plain mean, since where photons are scarce most passes see none and the
         # signal is in the rare passes that do (a median or trimmed mean would be 0 there).
-        camera = np.sort(np.asarray(self.camera_variances))
+        camera = sorted(self.camera_variances)     # a few hundred floats: cheaper than NumPy's
         keep = len(camera) - len(camera) // TRIM
-        return float(camera[:keep].mean()), float(np.mean(self.photon_variances_r2)) / self.radius_sq
+        return (math.fsum(camera[:keep]) / keep,
+                math.fsum(self.photon_variances_r2) / len(self.photon_variances_r2) / self.radius_sq)
 
     def _optimum(self, deposits_as_camera_work: bool):
         """n* for one camera path per pixel, inf where no camera-side error is measured yet,

@@ -45,6 +45,7 @@ from ..kernels.photon import BOUNCE_DIMS, LIGHT_DIMS, dimensions, photon_segment
 from .clusters import HitDensityClusters
 from .effort import UniformWeight, uniform_weight_option
 from .sppm import FIXED_ONE, Sppm
+from ..taichi_frontend import data_oriented
 
 REGENERATIONS = 10       # visible uniform proposals each chain should see per pass
 MAX_STEPS_PER_PASS = 1 << 24
@@ -76,7 +77,7 @@ MUTATION_BLOCKS = 4
 MIN_MUTATION = 0.05
 
 
-@ti.data_oriented
+@data_oriented
 class GuidedPhotons(Sppm):
     """Shared by `visibility` (one level) and `spatial-tf` (three)."""
     work_unit = "photons"
@@ -265,8 +266,7 @@ class GuidedPhotons(Sppm):
         n_p = self._steps_this_pass()
         self._measurement_points(it)
         self._prepare_targets()
-        self.pool.run_pass(self, self.seed_u32, it, n_p)
-        tallies = self.pool.tallies()
+        tallies = self.pool.run_pass(self, self.seed_u32, it, n_p)
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * n_p / np.maximum(recorded, 1e-300), 0.0)
@@ -381,14 +381,14 @@ class GuidedPhotons(Sppm):
                 f"acc {t[0, ACCEPTED] / mut:.2f}  theta {theta[0]:.2g}{moves}  {b}  beta {self.beta.value:.2f}")
 
 
-@ti.data_oriented
+@data_oriented
 class Visibility(GuidedPhotons):
     name = "visibility"
     n_levels = 1
     level_names = ("visibility",)
 
 
-@ti.data_oriented
+@data_oriented
 class SpatialTarget(GuidedPhotons):
     name = "spatial-tf"
     n_levels = 3

@@ -73,11 +73,12 @@ from ..kernels.vcm_mis import PathVertex
 from .effort import EffortBalance, UniformWeight, uniform_weight_option
 from .guided import LADDER_BURN_IN
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
+from ..taichi_frontend import data_oriented
 
 LEVELS = ("visibility", "contribution")
 
 
-@ti.data_oriented
+@data_oriented
 class _ChainModel:
     """What the chain pool and the light tracer see of mbe: the model interface of
     kernels/mcmc.py and the light-vertex visitor of kernels/photon.py, bound to one camera-
@@ -146,7 +147,7 @@ AUTO_SUBPATH_BUDGET = 1 << 19
 SPLAT_LIST_CAPACITY = 1024   # entries kept per splat list (16 bytes each); longer lists are traced again
 
 
-@ti.data_oriented
+@data_oriented
 class Mbe(Vcm):
     name = "mbe"
     work_unit = "paths"
@@ -214,6 +215,7 @@ class Mbe(Vcm):
         self.uniform_frame = f.vector(3, ti.i64, (2, h, w))
         self.uniform_probe = f.scalar(ti.i32, c)         # 1 while ladder c probes a uniform proposal
         self.last_estimate = f.scalar(ti.f64, w * h)     # last iteration's luminance per pixel (effort)
+        self.row_sums = f.vector(4, ti.f64, h)            # _end_pass's effort sums per image row
         self.b_mis = f.scalar(ti.f32, self.n_levels)     # previous pass's normalisations (MIS only)
         self.pre_scale = f.scalar(ti.f32, self.n_levels)  # previous pass's level scales (see deposit)
         # light subpaths traced, their segments, their shadow rays, the camera vertices they
@@ -328,14 +330,18 @@ class Mbe(Vcm):
         kappa = (float(self.b_mis_host[0]) if self.modified_mis else 1.0) * ratio * k
         # A pixel's estimate is the mean over its K subpaths: merging at each is 1/K of it.
         vm_normalization = 1.0 / (PI * self.radius ** 2 * steps * k)
+        # The chain parameters the last pass chose, held on the host, written in this launch.
         self._begin_iteration(self.store, eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2, n_subpaths,
-                              vm_normalization, ratio, 1.0 / steps, runtime.serial_loop(n_subpaths))
+                              vm_normalization, ratio, 1.0 / steps, *map(float, self.pool.theta_host),
+                              *map(float, self.b_mis_host), *map(float, self.pre_scale_host),
+                              runtime.serial_loop(n_subpaths))
         while True:
             # Compiled without Taichi's whole-kernel CSE, like the chain kernel (kernels/mcmc.py):
             # 0.6-1 s less to the first image, about 0.5 % of an iteration (docs/performance.md).
             with runtime.advanced_optimization(False):
-                self._camera_pass(self.store, self.fields, self.seed_u32, it, self.max_depth, vm_normalization, k)
-            n = int(self.store.count[None])
+                self._camera_pass(self.store, self.fields, self.seed_u32, it, self.max_depth, vm_normalization, k,
+                                  False)
+            n = self._index_vertices(self.store, self.grid, n_subpaths)      # path order and grid
             if n <= self.store.capacity:
                 break
             self.film.clear_frame()        # counter-based random numbers: the redo is the same pass
@@ -344,27 +350,23 @@ class Mbe(Vcm):
             self.store.clear(n_subpaths)
         self.vertices_last = n
         self.vertices_sum += n
-        self.store.finish(n_subpaths)
-        self.grid.build(self.store.p, self.radius, self.store.valid, n)
-        self.pool.run_pass(self.chain_model, self.seed_u32, it, steps)
-        tallies = self.pool.tallies(extra=(self.light_counters,))
+        tallies = self.pool.run_pass(self.chain_model, self.seed_u32, it, steps, extra=(self.light_counters,))
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * steps / np.maximum(recorded, 1e-300), 0.0)
         # The light side: beta x the uniform proposals' estimate + (1 - beta) x the chains'.
         frame_scales, sum_scales, uniform_halves, beta = self._pass_scales(steps, b, scale, tallies)
-        sums = self._end_pass(*frame_scales, *sum_scales, int(self.relative_balance),
+        sums = self._end_pass(*frame_scales, *sum_scales, self.relative_balance,
                               max(self.film.film.samples_per_pixel, 0))
         self.film.count_flushed()
         self._observe_effort(steps, k, n, sums, beta, uniform_halves, tallies["extra"][0])
-        uploads = []
+        # The next pass's MIS normalisations, level scales and mutation sizes stay on the host
+        # until the next _begin_iteration writes them (one launch less per iteration).
         if (b > 0).all():
             self.b_mis_host = b.astype(np.float32)
-            uploads.append((self.b_mis, self.b_mis_host))
         if (scale > 0).all():
             self.pre_scale_host = scale.astype(np.float32)
-            uploads.append((self.pre_scale, self.pre_scale_host))
-        self.pool.adapt(tallies, self.target_acceptance, uploads=uploads)
+        self.pool.adapt(tallies, self.target_acceptance, upload=False)
         self.totals += tallies["counters"]
         self.b_last = b
         if b[0] > 0:
@@ -436,77 +438,85 @@ class Mbe(Vcm):
     @ti.kernel
     def _end_pass(self, s0: ti.f64, s1: ti.f64, su: ti.f64, full0: ti.f64, full1: ti.f64, full_u: ti.f64,
                   even0: ti.f64, even1: ti.f64, even_u: ti.f64, odd0: ti.f64, odd1: ti.f64, odd_u: ti.f64,
-                  relative: ti.i32, samples: ti.i32) -> ti.types.vector(4, ti.f64):
-        """The pass's end in one launch (its top-level loops run one after the other; each
-        launch costs 0.1-0.3 ms on the host, a few per cent of a 64x64 iteration). First the
-        effort sums, before the light frames join the frame: the sums over pixels of (this iteration's
-        estimate - the last one's)^2, of (t_even - t_odd)^2 for the chains and for the uniform
-        proposals, and of the product of the two differences, in luminance, in one fixed
-        order (a serial loop) so that K and beta, and so the image, do not depend on thread
-        timing.
+                  relative: ti.template(), samples: ti.i32) -> ti.types.vector(4, ti.f64):
+        """The pass's end in one launch and one sweep over the pixels (each launch costs
+        0.1-0.3 ms on the host, a few per cent of a 64x64 iteration). At each pixel, first its
+        terms of the effort sums, before the light frames join the frame: (this iteration's
+        estimate - the last one's)^2, (t_even - t_odd)^2 for the chains and for the uniform
+        proposals, and the product of the two differences, in luminance; then the chains'
+        splats at their levels' final scales (s0, s1) and the uniform proposals' (su) join the
+        frame, which joins the film as one sample of the pixel. The sums are added per row,
+        then over rows in a fixed order, so that K and beta, and so the image, do not depend
+        on thread timing.
         relative (--balance relmse): each pixel weighted by 1 / (m^2 + eps), m its running
         mean over `samples` iterations, eps = (0.1 x the image's mean m)^2 (converge's relMSE)."""
         w = ti.static(self.dscene.width)
         y_weights = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
-        spread, halves, halves_u, product = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
         inv_samples = 1.0 / ti.cast(ti.max(samples, 1), ti.f64)
-        mean_all = ti.f64(0.0)
-        ti.loop_config(serialize=True)
-        for i in range(self.n_pixels):
-            if relative and samples > 0:
+        eps = 1e-30
+        if ti.static(relative):
+            mean_all = ti.f64(0.0)
+            ti.loop_config(serialize=True)
+            for i in range(self.n_pixels):
                 mean_all += self.film.film.sum[i // w, i % w].dot(y_weights) * inv_samples
-        eps = ti.max((0.1 * mean_all / ti.static(self.n_pixels)) ** 2, 1e-30)
-        ti.loop_config(serialize=True)
-        for i in range(self.n_pixels):
-            y, x = i // w, i % w
-            f0e = ti.cast(self.light_frame[0, y, x], ti.f64)
-            f0o = ti.cast(self.light_frame[1, y, x], ti.f64)
-            f1e = ti.cast(self.light_frame[2, y, x], ti.f64)
-            f1o = ti.cast(self.light_frame[3, y, x], ti.f64)
-            ue = ti.cast(self.uniform_frame[0, y, x], ti.f64)
-            uo = ti.cast(self.uniform_frame[1, y, x], ti.f64)
-            e = (ti.cast(self.film.frame[y, x], ti.f64) * ti.static(self.film.unit) + (f0e + f0o) * full0
-                 + (f1e + f1o) * full1 + (ue + uo) * full_u).dot(y_weights)
-            weight = ti.f64(1.0)
-            if relative and samples > 0:
-                m = self.film.film.sum[y, x].dot(y_weights) * inv_samples
-                weight = 1.0 / (m * m + eps)
-            d = e - self.last_estimate[i]
-            spread += weight * d * d
-            self.last_estimate[i] = e
-            h = (f0e * even0 + f1e * even1 - f0o * odd0 - f1o * odd1).dot(y_weights)
-            hu = (ue * even_u - uo * odd_u).dot(y_weights)
-            halves += weight * h * h
-            halves_u += weight * hu * hu
-            product += weight * h * hu
-        # Then the chains' splats, at their levels' final scales (s0, s1), and the uniform
-        # proposals' (su) join the frame, which joins the film as one sample of every pixel.
+            eps = ti.max((0.1 * mean_all / ti.static(self.n_pixels)) ** 2, 1e-30)
         ti.loop_config(serialize=ti.static(runtime.serial_loop(self.n_pixels)))
-        for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
-            # each level's two halves summed exactly (fixed point) before the scale
-            total = ti.cast(self.light_frame[0, y, x] + self.light_frame[1, y, x], ti.f64) * s0 \
-                + ti.cast(self.light_frame[2, y, x] + self.light_frame[3, y, x], ti.f64) * s1 \
-                + ti.cast(self.uniform_frame[0, y, x] + self.uniform_frame[1, y, x], ti.f64) * su
-            for k in ti.static(range(3)):
-                ti.atomic_add(self.film.frame[y, x][k], ti.cast(total[k] + 0.5, ti.i64))
-            for frame in ti.static(range(4)):
-                self.light_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
-            for frame in ti.static(range(2)):
-                self.uniform_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
-            self.film.flush_pixel(y, x)
-        return ti.Vector([spread, halves, halves_u, product], ti.f64)
+        for y in range(self.dscene.height):
+            row = ti.Vector([0.0, 0.0, 0.0, 0.0], ti.f64)     # spread, halves, halves_u, product
+            for x in range(w):
+                f0e = ti.cast(self.light_frame[0, y, x], ti.f64)
+                f0o = ti.cast(self.light_frame[1, y, x], ti.f64)
+                f1e = ti.cast(self.light_frame[2, y, x], ti.f64)
+                f1o = ti.cast(self.light_frame[3, y, x], ti.f64)
+                ue = ti.cast(self.uniform_frame[0, y, x], ti.f64)
+                uo = ti.cast(self.uniform_frame[1, y, x], ti.f64)
+                e = (ti.cast(self.film.frame[y, x], ti.f64) * ti.static(self.film.unit) + (f0e + f0o) * full0
+                     + (f1e + f1o) * full1 + (ue + uo) * full_u).dot(y_weights)
+                weight = ti.f64(1.0)
+                if ti.static(relative):
+                    if samples > 0:
+                        m = self.film.film.sum[y, x].dot(y_weights) * inv_samples
+                        weight = 1.0 / (m * m + eps)
+                i = y * w + x
+                d = e - self.last_estimate[i]
+                self.last_estimate[i] = e
+                h = (f0e * even0 + f1e * even1 - f0o * odd0 - f1o * odd1).dot(y_weights)
+                hu = (ue * even_u - uo * odd_u).dot(y_weights)
+                row += weight * ti.Vector([d * d, h * h, hu * hu, h * hu], ti.f64)
+                # each level's two halves summed exactly (fixed point) before the scale
+                total = ti.cast(self.light_frame[0, y, x] + self.light_frame[1, y, x], ti.f64) * s0 \
+                    + ti.cast(self.light_frame[2, y, x] + self.light_frame[3, y, x], ti.f64) * s1 \
+                    + ti.cast(self.uniform_frame[0, y, x] + self.uniform_frame[1, y, x], ti.f64) * su
+                self.film.frame[y, x] += ti.cast(total + 0.5, ti.i64)
+                for frame in ti.static(range(4)):
+                    self.light_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
+                for frame in ti.static(range(2)):
+                    self.uniform_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
+                self.film.flush_pixel(y, x)
+            self.row_sums[y] = row
+        sums = ti.Vector([0.0, 0.0, 0.0, 0.0], ti.f64)
+        ti.loop_config(serialize=True)
+        for y in range(self.dscene.height):
+            sums += self.row_sums[y]
+        return sums
 
     @ti.kernel
     def _begin_iteration(self, store: ti.template(), eta: ti.f32, inv_eta: ti.f32, pixels: ti.f32, kappa: ti.f32,
                          r2: ti.f32, n_subpaths: ti.i32, vm_normalization: ti.f32, pairing: ti.f32,
-                         inv_steps: ti.f32, serial: ti.template()):
-        """The iteration's MIS constants, subpath count and normalisations, and the emptied
-        camera-vertex store, in one launch (each field write from Python, and each launch,
-        costs host time)."""
+                         inv_steps: ti.f32, theta0: ti.f32, theta1: ti.f32, b_mis0: ti.f32, b_mis1: ti.f32,
+                         pre_scale0: ti.f32, pre_scale1: ti.f32, serial: ti.template()):
+        """The iteration's MIS constants, subpath count and normalisations, the chains'
+        parameters from the last pass (mutation sizes, the MIS normalisations b', the level
+        scales), and the emptied camera-vertex store, in one launch (each field write from
+        Python, and each launch, costs host time; a scalar argument costs less than a vector
+        one). Two chain levels."""
         store.clear_paths(n_subpaths, serial)
         self.consts[None] = ti.Vector([eta, inv_eta, pixels, kappa, r2])
         self.n_subpaths[None] = n_subpaths
         self._norms[None] = ti.Vector([vm_normalization, pairing, inv_steps])
+        self.pool.write_theta(ti.Vector([theta0, theta1]))
+        self.b_mis[0], self.b_mis[1] = b_mis0, b_mis1
+        self.pre_scale[0], self.pre_scale[1] = pre_scale0, pre_scale1
 
     # -- camera side: vcm's camera walk, storing vertices instead of using light ones ----
     @ti.func

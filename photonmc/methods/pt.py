@@ -18,11 +18,12 @@ from ..kernels.device_scene import UNBOUNDED_DEPTH, DeviceScene
 from ..kernels.direct import next_event
 from ..kernels.sampling import power_heuristic, vec3
 from .base import Method, MethodSettings
+from ..taichi_frontend import data_oriented
 
 Radiance = ti.types.struct(L=vec3)
 
 
-@ti.data_oriented
+@data_oriented
 class PathTracer(Method):
     name = "pt"
     work_unit = "samples"

@@ -41,6 +41,7 @@ from ..kernels.photon import MAX_PHOTON_SEGMENTS, NORMAL_COS_MIN, photon_segment
 from ..kernels.sampling import onb, to_local, vec3
 from .base import Method
 from .effort import EffortBalance
+from ..taichi_frontend import data_oriented
 
 FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flux
 PI = math.pi                      # use as ti.f64(PI): a bare literal is a float32 constant (default_fp)
@@ -59,7 +60,7 @@ class _HashSource:
         return rng.uniform(key, dim)
 
 
-@ti.data_oriented
+@data_oriented
 class Sppm(Method):
     name = "sppm"
     work_unit = "photons"

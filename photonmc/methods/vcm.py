@@ -22,6 +22,7 @@ import numpy as np
 import taichi as ti
 
 from ..errors import SettingsError
+from ..runtime import serial_loop
 from ..film import SplatFilm
 from ..kernels import rng, vcm_mis
 from ..kernels.camera_walk import CONTINUE, MATERIAL_ROULETTE, camera_walk
@@ -35,6 +36,7 @@ from ..kernels.vcm_mis import MisConstants, PathVertex
 from ..kernels import vcm_techniques
 from .base import Method
 from .sppm import _HashSource
+from ..taichi_frontend import data_oriented
 
 # name -> (connections incl. next-event estimation, merging, light tracing)
 TECHNIQUES = {"vcm": (True, True, True), "bpt": (True, False, True), "bpm": (False, True, False),
@@ -48,7 +50,7 @@ CameraSubpath = ti.types.struct(L=vec3, merged=ti.types.vector(3, ti.i64), m=vcm
                                 max_depth=ti.i32, vm_normalization=ti.f32)
 
 
-@ti.data_oriented
+@data_oriented
 class Vcm(Method):
     name = "vcm"
     work_unit = "paths"
@@ -146,19 +148,19 @@ class Vcm(Method):
         it = self.iteration_index
         self.radius = self._radius_at(it)
         eta = PI * self.radius ** 2 * self.n_light
-        self.consts[None] = [eta if self.use_vm else 0.0, 1.0 / eta if self.use_vc else 0.0, float(self.n_light),
-                             1.0, self.radius ** 2]
+        consts = [eta if self.use_vm else 0.0, 1.0 / eta if self.use_vc else 0.0, float(self.n_light), 1.0,
+                  self.radius ** 2]
         # The store and the grid are template arguments of the passes (a grown store compiles
-        # them anew); without a store (light tracing only) any other object stands in.
+        # them anew); without a store (light tracing only) any other object stands in. Three
+        # launches in all: every launch, and every field read or write from Python, costs host
+        # time, a few per cent of a small image's iteration (docs/performance.md).
+        store = self.store if self.store is not None else self.fields
         while True:
-            if self.store is not None:
-                self.store.clear(self.n_light)
-                self._light_pass(self.store, self.seed_u32, it, self.n_light, self.max_light_segments)
-            else:
-                self._light_pass(self.fields, self.seed_u32, it, self.n_light, self.max_light_segments)
+            self._light_pass(store, consts, self.seed_u32, it, self.n_light, self.max_light_segments,
+                             serial_loop(self.n_light))
             if self.store is None:
                 break
-            n = int(self.store.count[None])
+            n = self._index_vertices(self.store, self.grid if self.grid is not None else self.fields, self.n_light)
             if n <= self.store.capacity:
                 break
             # Too many vertices to store: grow (recompiles the passes once) and redo the pass,
@@ -166,16 +168,34 @@ class Vcm(Method):
             self.film.clear_frame()
             self._allocate_store(int(n * 1.25) + 1024)
             self.store_grown += 1
+            store = self.store
         if self.store is not None:
-            self.vertices_last = int(self.store.count[None])
-            self.store.finish(self.n_light)
-            if self.grid is not None:
-                self.grid.build(self.store.p, self.radius, self.store.valid, self.vertices_last)
-        self._camera_pass(self.store if self.store is not None else self.fields, self.grid if self.grid is not None
-                          else self.fields, self.seed_u32, it, self.max_depth, 1.0 / (PI * self.radius ** 2 * self.n_light),
-                          1)
-        self.film.flush()
+            self.vertices_last = n
+        self._camera_pass(store, self.grid if self.grid is not None else self.fields, self.seed_u32, it,
+                          self.max_depth, 1.0 / (PI * self.radius ** 2 * self.n_light), 1, True)
+        self.film.count_flushed()
         self.work_done += self.n_light + self.n_pixels
+
+    def _index_vertices(self, store, grid, n_paths: int) -> int:
+        """After the pass that filled `store`: its path order, and the merging grid of radius
+        r_i over its vertices (when grid is a PointGrid), in one launch. Returns the vertices
+        the pass tried to store; more than the capacity indexes nothing (the caller grows the
+        store and redoes the pass)."""
+        # Whether the grid's loops (over its table slots) run serially goes by the last
+        # iteration's count, which this one's is close to: a fixed rule, so images stay
+        # deterministic (runtime.serial_loop).
+        slots = grid.table_slots(max(self.vertices_last, n_paths)) if isinstance(grid, PointGrid) else 0
+        return int(self._index_kernel(store, grid, n_paths, self.radius, serial_loop(n_paths), serial_loop(slots)))
+
+    @ti.kernel
+    def _index_kernel(self, store: ti.template(), grid: ti.template(), n_paths: ti.i32, radius: ti.f32,
+                      serial_paths: ti.template(), serial_grid: ti.template()) -> ti.i32:
+        n = store.count[None]
+        count = n if n <= ti.static(store.capacity) else 0
+        store.finish_paths(n_paths, count, serial_paths)
+        if ti.static(isinstance(grid, PointGrid)):
+            grid.build_points(store.p, store.valid, radius, grid.slots_for(count), count, serial_grid)
+        return n
 
     @ti.kernel
     def _first_hits(self):
@@ -192,8 +212,13 @@ class Vcm(Method):
 
     # -- light side ----------------------------------------------------------------------
     @ti.kernel
-    def _light_pass(self, store: ti.template(), seed: ti.u32, iteration: ti.u32, n_light: ti.i32,
-                    max_segments: ti.i32):
+    def _light_pass(self, store: ti.template(), consts: ti.types.vector(5, ti.f32), seed: ti.u32,
+                    iteration: ti.u32, n_light: ti.i32, max_segments: ti.i32, serial_clear: ti.template()):
+        """The iteration's MIS constants set and the light-vertex store emptied, then the
+        light subpaths traced, in one launch."""
+        self.consts[None] = consts
+        if ti.static(isinstance(store, SubpathVertices)):
+            store.clear_paths(n_light, serial_clear)
         for p in range(n_light):
             key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
             used, _ = trace_photon(self.dscene, _HashSource, key, self, p, max_segments)
@@ -221,10 +246,12 @@ class Vcm(Method):
     # -- camera side ---------------------------------------------------------------------
     @ti.kernel
     def _camera_pass(self, store: ti.template(), grid: ti.template(), seed: ti.u32, iteration: ti.u32,
-                     max_depth: ti.i32, vm_normalization: ti.f32, per_pixel: ti.i32):
+                     max_depth: ti.i32, vm_normalization: ti.f32, per_pixel: ti.i32, flush: ti.template()):
         """per_pixel camera subpaths per pixel (vcm: 1; mbe: --camera-paths). Subpath
         k * pixels + pixel draws its own random numbers (k = 0: the pixel's, as with one) and
-        adds 1/per_pixel of its estimate to the pixel; `acc.subpath` names the subpath."""
+        adds 1/per_pixel of its estimate to the pixel; `acc.subpath` names the subpath.
+        flush: then the frame joins the film in the same launch (vcm; mbe's chains add to
+        the frame after this pass)."""
         sc = self.dscene
         inv_per_pixel = 1.0 / ti.cast(per_pixel, ti.f32)
         for k, y, x in ti.ndrange(per_pixel, sc.height, sc.width):
@@ -238,6 +265,10 @@ class Vcm(Method):
             # Light tracing renders all but the emitters seen directly.
             camera_walk(sc, o, d, state, 1 if ti.static(self.lt_only) else max_depth, self, acc)
             self.film.add_fixed(y, x, self.film.fixed(acc.L * inv_per_pixel) + acc.merged)
+        if ti.static(flush):
+            ti.loop_config(serialize=ti.static(serial_loop(self.n_pixels)))
+            for y, x in ti.ndrange(sc.height, sc.width):
+                self.film.flush_pixel(y, x)
 
     # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
     roulette = MATERIAL_ROULETTE
