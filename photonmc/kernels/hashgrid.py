@@ -196,7 +196,7 @@ class PointGrid(HashGrid):
         """One launch: the kernel's top-level loops run one after the other (clear, count,
         prefix sum, fill), and every launch costs tens of microseconds on the host, a few per
         cent of a small image's iteration (docs/performance.md); a caller's kernel may build
-        in its own launch (methods/vcm.py's _index_vertices). serial (few points): the loops
+        in its own launch (methods/vcm.py's index_vertices). serial (few points): the loops
         run on the launching thread (runtime.serial_loop)."""
         self.max_radius[None] = radius
         self.cell_size[None] = ti.max(2.0 * radius, 1e-30)

@@ -2,7 +2,6 @@
 order that makes connections deterministic."""
 import taichi as ti
 
-from ..runtime import serial_loop
 from .fields import FieldGroup
 from .vcm_mis import PathVertex
 from ..taichi_frontend import data_oriented
@@ -62,31 +61,20 @@ class SubpathVertices:
                           length=self.length[slot], bsdf=self.bsdf[slot], dvcm=self.dvcm[slot], dvc=self.dvc[slot],
                           dvm=self.dvm[slot])
 
-    def clear(self, n_paths: int):
-        self._clear(n_paths, serial_loop(n_paths))
-
-    @ti.kernel
-    def _clear(self, n_paths: ti.i32, serial: ti.template()):
-        self.clear_paths(n_paths, serial)
-
     @ti.func
     def clear_paths(self, n_paths: ti.i32, serial: ti.template()):
-        """Empty the store for paths [0, n_paths) (a caller's kernel may do this in its own
-        launch); serial: runtime.serial_loop(n_paths)."""
+        """Empty the store for paths [0, n_paths), at the top level of the kernel that fills
+        it; serial: runtime.serial_loop(n_paths)."""
         self.count[None] = 0
         ti.loop_config(serialize=serial)
         for i in range(n_paths):
             self.path_count[i] = 0
 
-    @ti.kernel
-    def _finish(self, n_paths: ti.i32, serial: ti.template()):
-        self.finish_paths(n_paths, self.count[None], serial)
-
     @ti.func
     def finish_paths(self, n_paths: ti.i32, n, serial: ti.template()):
         """Path starts (a serial prefix sum), then the order and the valid flags of the first
-        n slots, in one launch (the top-level loops run one after the other; a caller's
-        kernel may do this in its own launch, methods/vcm.py's _index_vertices)."""
+        n slots, at the top level of the kernel that filled the store (its loops run one
+        after the other; methods/vcm.py's index_vertices)."""
         ti.loop_config(serialize=True)
         for i in range(n_paths):
             if i == 0:
@@ -100,8 +88,3 @@ class SubpathVertices:
         for slot in range(n):
             self.order[self.path_start[self.path[slot]] + self.index[slot]] = slot
             self.valid[slot] = 1
-
-    def finish(self, n_paths: int):
-        """After the light pass: path order, and which slots hold a vertex (for the grid).
-        Serial for few paths (runtime.serial_loop; a path holds a few vertices)."""
-        self._finish(n_paths, serial_loop(n_paths))

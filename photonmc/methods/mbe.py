@@ -330,24 +330,22 @@ class Mbe(Vcm):
         kappa = (float(self.b_mis_host[0]) if self.modified_mis else 1.0) * ratio * k
         # A pixel's estimate is the mean over its K subpaths: merging at each is 1/K of it.
         vm_normalization = 1.0 / (PI * self.radius ** 2 * steps * k)
-        # The chain parameters the last pass chose, held on the host, written in this launch.
-        self._begin_iteration(self.store, eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2, n_subpaths,
-                              vm_normalization, ratio, 1.0 / steps, *map(float, self.pool.theta_host),
-                              *map(float, self.b_mis_host), *map(float, self.pre_scale_host),
-                              runtime.serial_loop(n_subpaths))
         while True:
-            # Compiled without Taichi's whole-kernel CSE, like the chain kernel (kernels/mcmc.py):
-            # 0.6-1 s less to the first image, about 0.5 % of an iteration (docs/performance.md).
+            # One launch: the iteration's constants and the chain parameters the last pass
+            # chose (held on the host), the camera subpaths, their vertices indexed. Compiled
+            # without Taichi's whole-kernel CSE, like the chain kernel (kernels/mcmc.py): 0.6-1 s
+            # less to the first image, about 0.5 % of an iteration (docs/performance.md).
             with runtime.advanced_optimization(False):
-                self._camera_pass(self.store, self.fields, self.seed_u32, it, self.max_depth, vm_normalization, k,
-                                  False)
-            n = self._index_vertices(self.store, self.grid, n_subpaths)      # path order and grid
+                n = int(self._camera_side(
+                    self.store, self.grid, eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2, n_subpaths,
+                    vm_normalization, ratio, 1.0 / steps, *map(float, self.pool.theta_host),
+                    *map(float, self.b_mis_host), *map(float, self.pre_scale_host), self.seed_u32, it,
+                    self.max_depth, k, self.radius, *self._index_serial(n_subpaths)))
             if n <= self.store.capacity:
                 break
             self.film.clear_frame()        # counter-based random numbers: the redo is the same pass
             self._allocate_store(int(n * 1.25) + 1024)
             self.store_grown += 1
-            self.store.clear(n_subpaths)
         self.vertices_last = n
         self.vertices_sum += n
         tallies = self.pool.run_pass(self.chain_model, self.seed_u32, it, steps, extra=(self.light_counters,))
@@ -361,7 +359,7 @@ class Mbe(Vcm):
         self.film.count_flushed()
         self._observe_effort(steps, k, n, sums, beta, uniform_halves, tallies["extra"][0])
         # The next pass's MIS normalisations, level scales and mutation sizes stay on the host
-        # until the next _begin_iteration writes them (one launch less per iteration).
+        # until the next _camera_side writes them (one launch less per iteration).
         if (b > 0).all():
             self.b_mis_host = b.astype(np.float32)
         if (scale > 0).all():
@@ -501,22 +499,27 @@ class Mbe(Vcm):
         return sums
 
     @ti.kernel
-    def _begin_iteration(self, store: ti.template(), eta: ti.f32, inv_eta: ti.f32, pixels: ti.f32, kappa: ti.f32,
-                         r2: ti.f32, n_subpaths: ti.i32, vm_normalization: ti.f32, pairing: ti.f32,
-                         inv_steps: ti.f32, theta0: ti.f32, theta1: ti.f32, b_mis0: ti.f32, b_mis1: ti.f32,
-                         pre_scale0: ti.f32, pre_scale1: ti.f32, serial: ti.template()):
-        """The iteration's MIS constants, subpath count and normalisations, the chains'
-        parameters from the last pass (mutation sizes, the MIS normalisations b', the level
-        scales), and the emptied camera-vertex store, in one launch (each field write from
-        Python, and each launch, costs host time; a scalar argument costs less than a vector
-        one). Two chain levels."""
-        store.clear_paths(n_subpaths, serial)
+    def _camera_side(self, store: ti.template(), grid: ti.template(), eta: ti.f32, inv_eta: ti.f32, pixels: ti.f32,
+                     kappa: ti.f32, r2: ti.f32, n_subpaths: ti.i32, vm_normalization: ti.f32, pairing: ti.f32,
+                     inv_steps: ti.f32, theta0: ti.f32, theta1: ti.f32, b_mis0: ti.f32, b_mis1: ti.f32,
+                     pre_scale0: ti.f32, pre_scale1: ti.f32, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32,
+                     per_pixel: ti.i32, radius: ti.f32, serial_paths: ti.template(),
+                     serial_grid: ti.template()) -> ti.i32:
+        """The iteration's camera side in one launch (each launch, and each field write from
+        Python, costs host time; a scalar argument costs less than a vector one): its MIS
+        constants, subpath count and normalisations, the chains' parameters from the last
+        pass (mutation sizes, the MIS normalisations b', the level scales; two levels), the
+        emptied store, the camera subpaths, their vertices indexed for the chains (path order,
+        merging grid). Returns the vertices the subpaths tried to store."""
+        store.clear_paths(n_subpaths, serial_paths)
         self.consts[None] = ti.Vector([eta, inv_eta, pixels, kappa, r2])
         self.n_subpaths[None] = n_subpaths
         self._norms[None] = ti.Vector([vm_normalization, pairing, inv_steps])
         self.pool.write_theta(ti.Vector([theta0, theta1]))
         self.b_mis[0], self.b_mis[1] = b_mis0, b_mis1
         self.pre_scale[0], self.pre_scale[1] = pre_scale0, pre_scale1
+        self.camera_subpaths(store, grid, seed, iteration, max_depth, vm_normalization, per_pixel)
+        return self.index_vertices(store, grid, n_subpaths, radius, serial_paths, serial_grid)
 
     # -- camera side: vcm's camera walk, storing vertices instead of using light ones ----
     @ti.func

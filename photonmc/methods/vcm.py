@@ -148,48 +148,46 @@ class Vcm(Method):
         it = self.iteration_index
         self.radius = self._radius_at(it)
         eta = PI * self.radius ** 2 * self.n_light
-        consts = [eta if self.use_vm else 0.0, 1.0 / eta if self.use_vc else 0.0, float(self.n_light), 1.0,
-                  self.radius ** 2]
+        # MisConstants and r^2, as scalars (a vector argument costs more host time)
+        consts = (eta if self.use_vm else 0.0, 1.0 / eta if self.use_vc else 0.0, float(self.n_light), 1.0,
+                  self.radius ** 2)
         # The store and the grid are template arguments of the passes (a grown store compiles
-        # them anew); without a store (light tracing only) any other object stands in. Three
+        # them anew); without a store (light tracing only) any other object stands in. Two
         # launches in all: every launch, and every field read or write from Python, costs host
         # time, a few per cent of a small image's iteration (docs/performance.md).
         store = self.store if self.store is not None else self.fields
+        grid = self.grid if self.grid is not None else self.fields
         while True:
-            self._light_pass(store, consts, self.seed_u32, it, self.n_light, self.max_light_segments,
-                             serial_loop(self.n_light))
-            if self.store is None:
-                break
-            n = self._index_vertices(self.store, self.grid if self.grid is not None else self.fields, self.n_light)
-            if n <= self.store.capacity:
+            n = int(self._light_pass(store, grid, *consts, self.seed_u32, it, self.n_light, self.max_light_segments,
+                                     self.radius, *self._index_serial(self.n_light)))
+            if self.store is None or n <= self.store.capacity:
                 break
             # Too many vertices to store: grow (recompiles the passes once) and redo the pass,
             # which the counter-based random numbers make the same pass.
             self.film.clear_frame()
             self._allocate_store(int(n * 1.25) + 1024)
             self.store_grown += 1
-            store = self.store
+            store, grid = self.store, (self.grid if self.grid is not None else self.fields)
         if self.store is not None:
             self.vertices_last = n
-        self._camera_pass(store, self.grid if self.grid is not None else self.fields, self.seed_u32, it,
-                          self.max_depth, 1.0 / (PI * self.radius ** 2 * self.n_light), 1, True)
+        self._camera_pass(store, grid, self.seed_u32, it, self.max_depth, 1.0 / (PI * self.radius ** 2 * self.n_light))
         self.film.count_flushed()
         self.work_done += self.n_light + self.n_pixels
 
-    def _index_vertices(self, store, grid, n_paths: int) -> int:
-        """After the pass that filled `store`: its path order, and the merging grid of radius
-        r_i over its vertices (when grid is a PointGrid), in one launch. Returns the vertices
-        the pass tried to store; more than the capacity indexes nothing (the caller grows the
-        store and redoes the pass)."""
-        # Whether the grid's loops (over its table slots) run serially goes by the last
-        # iteration's count, which this one's is close to: a fixed rule, so images stay
-        # deterministic (runtime.serial_loop).
-        slots = grid.table_slots(max(self.vertices_last, n_paths)) if isinstance(grid, PointGrid) else 0
-        return int(self._index_kernel(store, grid, n_paths, self.radius, serial_loop(n_paths), serial_loop(slots)))
+    def _index_serial(self, n_paths: int) -> tuple[bool, bool]:
+        """Whether index_vertices' loops run serially (runtime.serial_loop): over the paths,
+        and over the grid's table slots, as many as the last iteration's count needs (this
+        one's is close to it; a fixed rule, so images stay deterministic)."""
+        slots = self.grid.table_slots(max(self.vertices_last, n_paths)) if self.grid is not None else 0
+        return serial_loop(n_paths), serial_loop(slots)
 
-    @ti.kernel
-    def _index_kernel(self, store: ti.template(), grid: ti.template(), n_paths: ti.i32, radius: ti.f32,
-                      serial_paths: ti.template(), serial_grid: ti.template()) -> ti.i32:
+    @ti.func
+    def index_vertices(self, store: ti.template(), grid: ti.template(), n_paths, radius,
+                       serial_paths: ti.template(), serial_grid: ti.template()):
+        """After the loop that filled `store` (at its kernel's top level): its path order, and
+        the merging grid of radius r_i over its vertices (when grid is a PointGrid). Returns
+        the vertices the pass tried to store; more than the capacity indexes nothing (the
+        caller grows the store and redoes the pass)."""
         n = store.count[None]
         count = n if n <= ti.static(store.capacity) else 0
         store.finish_paths(n_paths, count, serial_paths)
@@ -212,18 +210,25 @@ class Vcm(Method):
 
     # -- light side ----------------------------------------------------------------------
     @ti.kernel
-    def _light_pass(self, store: ti.template(), consts: ti.types.vector(5, ti.f32), seed: ti.u32,
-                    iteration: ti.u32, n_light: ti.i32, max_segments: ti.i32, serial_clear: ti.template()):
-        """The iteration's MIS constants set and the light-vertex store emptied, then the
-        light subpaths traced, in one launch."""
-        self.consts[None] = consts
+    def _light_pass(self, store: ti.template(), grid: ti.template(), vm_weight: ti.f32, vc_weight: ti.f32,
+                    light_paths: ti.f32, camera_only: ti.f32, r2: ti.f32, seed: ti.u32, iteration: ti.u32,
+                    n_light: ti.i32, max_segments: ti.i32, radius: ti.f32, serial_paths: ti.template(),
+                    serial_grid: ti.template()) -> ti.i32:
+        """The iteration's MIS constants set and the light-vertex store emptied, the light
+        subpaths traced, their vertices indexed (index_vertices), in one launch. Returns the
+        vertices the pass tried to store (0 without a store)."""
+        self.consts[None] = ti.Vector([vm_weight, vc_weight, light_paths, camera_only, r2])
         if ti.static(isinstance(store, SubpathVertices)):
-            store.clear_paths(n_light, serial_clear)
+            store.clear_paths(n_light, serial_paths)
         for p in range(n_light):
             key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
             used, _ = trace_photon(self.dscene, _HashSource, key, self, p, max_segments)
             if used:
                 ti.atomic_add(self.counters[0], 1)
+        n = 0
+        if ti.static(isinstance(store, SubpathVertices)):
+            n = self.index_vertices(store, grid, n_light, radius, serial_paths, serial_grid)
+        return n
 
     @ti.func
     def visit_vertex(self, path: ti.i32, v) -> ti.i32:
@@ -246,12 +251,20 @@ class Vcm(Method):
     # -- camera side ---------------------------------------------------------------------
     @ti.kernel
     def _camera_pass(self, store: ti.template(), grid: ti.template(), seed: ti.u32, iteration: ti.u32,
-                     max_depth: ti.i32, vm_normalization: ti.f32, per_pixel: ti.i32, flush: ti.template()):
-        """per_pixel camera subpaths per pixel (vcm: 1; mbe: --camera-paths). Subpath
-        k * pixels + pixel draws its own random numbers (k = 0: the pixel's, as with one) and
-        adds 1/per_pixel of its estimate to the pixel; `acc.subpath` names the subpath.
-        flush: then the frame joins the film in the same launch (vcm; mbe's chains add to
-        the frame after this pass)."""
+                     max_depth: ti.i32, vm_normalization: ti.f32):
+        """One camera subpath per pixel, then the frame joins the film, in one launch."""
+        self.camera_subpaths(store, grid, seed, iteration, max_depth, vm_normalization, 1)
+        ti.loop_config(serialize=ti.static(serial_loop(self.n_pixels)))
+        for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
+            self.film.flush_pixel(y, x)
+
+    @ti.func
+    def camera_subpaths(self, store: ti.template(), grid: ti.template(), seed, iteration, max_depth,
+                        vm_normalization, per_pixel):
+        """per_pixel camera subpaths per pixel (vcm: 1; mbe: --camera-paths), at a kernel's
+        top level. Subpath k * pixels + pixel draws its own random numbers (k = 0: the
+        pixel's, as with one) and adds 1/per_pixel of its estimate to the pixel; `acc.subpath`
+        names the subpath."""
         sc = self.dscene
         inv_per_pixel = 1.0 / ti.cast(per_pixel, ti.f32)
         for k, y, x in ti.ndrange(per_pixel, sc.height, sc.width):
@@ -265,10 +278,6 @@ class Vcm(Method):
             # Light tracing renders all but the emitters seen directly.
             camera_walk(sc, o, d, state, 1 if ti.static(self.lt_only) else max_depth, self, acc)
             self.film.add_fixed(y, x, self.film.fixed(acc.L * inv_per_pixel) + acc.merged)
-        if ti.static(flush):
-            ti.loop_config(serialize=ti.static(serial_loop(self.n_pixels)))
-            for y, x in ti.ndrange(sc.height, sc.width):
-                self.film.flush_pixel(y, x)
 
     # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
     roulette = MATERIAL_ROULETTE
