@@ -66,6 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
     cs.add_argument("--seed", type=int, default=0)
     cs.add_argument("--seeds", type=_seed_list, help="comma-separated seeds, e.g. 0,1,2,3: one render per method "
                                                      "and seed, figures as mean and spread over seeds")
+    c.add_argument("--interleave", action="store_true",
+                   help="render the methods together in alternating rounds (each still gets its budget), so "
+                        "that a machine whose speed drifts drifts for all alike; all stay in memory together")
     c.add_argument("--threads", type=int)
     c.add_argument("--max-depth", type=int)
     c.add_argument("--photons", type=_photons, help="photon paths per iteration, or auto")
@@ -205,7 +208,7 @@ def cmd_converge(args) -> int:
     options = _method_options(args)
     _, table = converge(scene, Path(args.scene).parent.name or args.scene, methods, args.reference, budget,
                         args.out, seeds=args.seeds or [args.seed], options=options, max_depth=args.max_depth,
-                        log=lambda msg: print(msg, file=sys.stderr))
+                        log=lambda msg: print(msg, file=sys.stderr), interleave=args.interleave)
     print(table)
     print(f"wrote {args.out}/convergence.csv, convergence.png, convergence.md", file=sys.stderr)
     return 0

@@ -9,6 +9,11 @@ convergence.md (final figures and the equal-time ranking), plus each method's fi
 With several seeds (`--seeds 0,1,2,3`) every method renders once per seed: the table gives
 the mean and spread over seeds, and the per-pixel relative-error spread is estimated from
 the seeds with the single-render noise removed (`metrics.relmse_spread_over_seeds`).
+
+The methods run one after the other, or with `--interleave` together in alternating rounds
+of a sixteenth of the budget each: on a shared machine whose speed drifts by 10-40 % within
+minutes (a virtual machine's steal time), one after the other gives each method different
+machine time for its budget, and the equal-time ranking inherits that (docs/convergence.md).
 """
 from __future__ import annotations
 
@@ -27,6 +32,7 @@ from .methods import method_class
 from .loop import Budget, prepare
 
 CHECKPOINT_GROWTH = 1.5
+INTERLEAVE_ROUNDS = 16     # --interleave: rounds of budget / 16 per method, alternating
 
 
 @dataclass
@@ -50,40 +56,94 @@ def _schedule(total: float, first: float):
     return points + [total]
 
 
-def measure(scene, method: str, reference: np.ndarray, budget: Budget, seed: int = 0, options=None,
-            max_depth=None) -> tuple[list[Checkpoint], np.ndarray, dict]:
-    eps = metrics.relmse_epsilon(reference)
-    p = prepare(scene, method=method, seed=seed, options=options, max_depth=max_depth)
-    try:
-        m = p.method
-        h, w = p.dscene.height, p.dscene.width
-        if reference.shape[:2] != (h, w):
-            raise PhotonmcError(f"reference is {reference.shape[1]}x{reference.shape[0]} but the scene renders "
-                                f"{w}x{h} (set the resolution with -D, e.g. -D res={reference.shape[1]})")
-        m.iterate()          # compiles every kernel
-        m.reset()
-        by_time = budget.time is not None
-        total = budget.time if by_time else float(budget.iterations)
-        pending = _schedule(total, total / 64 if by_time else 1.0)
-        points, clock = [], 0.0
-        while True:
+class _Run:
+    """One method and seed rendering against the reference: prepared and compiled on
+    creation (a warm-up iteration, then reset), then advanced to a point of its own clock
+    (seconds of its iterations, compilation and comparisons excluded) or iteration count."""
+
+    def __init__(self, scene, method: str, reference: np.ndarray, budget: Budget, seed: int, options, max_depth):
+        self.method, self.seed, self.reference = method, seed, reference
+        self.eps = metrics.relmse_epsilon(reference)
+        self.p = prepare(scene, method=method, seed=seed, options=options, max_depth=max_depth)
+        try:
+            h, w = self.p.dscene.height, self.p.dscene.width
+            if reference.shape[:2] != (h, w):
+                raise PhotonmcError(f"reference is {reference.shape[1]}x{reference.shape[0]} but the scene renders "
+                                    f"{w}x{h} (set the resolution with -D, e.g. -D res={reference.shape[1]})")
+            self.p.method.iterate()          # compiles every kernel
+            self.p.method.reset()
+        except BaseException:
+            self.p.release()
+            raise
+        self.by_time = budget.time is not None
+        self.total = budget.time if self.by_time else float(budget.iterations)
+        self.pending = _schedule(self.total, self.total / 64 if self.by_time else 1.0)
+        self.points, self.clock = [], 0.0
+
+    @property
+    def done(self) -> bool:
+        return not self.pending
+
+    def advance(self, until: float) -> None:
+        """Iterate until the budget's measure (seconds or iterations) reaches `until` or the
+        budget ends, comparing with the reference at each checkpoint passed."""
+        m = self.p.method
+        while self.pending:
+            progress = self.clock if self.by_time else m.iterations
+            if progress >= until - 1e-12:
+                return
             t = time.perf_counter()
             m.iterate()
-            clock += time.perf_counter() - t
-            progress = clock if by_time else m.iterations
-            if pending and progress >= pending[0] - 1e-12:
-                while pending and progress >= pending[0] - 1e-12:
-                    pending.pop(0)
-                img = m.image()
-                points.append(Checkpoint(method, seed, clock, m.iterations, metrics.rmse(img, reference),
-                                         metrics.relmse(img, reference, eps),
-                                         metrics.mean_luminance_bias(img, reference),
-                                         metrics.relmse_spread(img, reference, eps)))
-            if not pending:
-                break
-        return points, m.image().astype(np.float32), m.stats()
-    finally:
-        p.release()
+            self.clock += time.perf_counter() - t
+            progress = self.clock if self.by_time else m.iterations
+            if progress >= self.pending[0] - 1e-12:
+                while self.pending and progress >= self.pending[0] - 1e-12:
+                    self.pending.pop(0)
+                img, ref = m.image(), self.reference
+                self.points.append(Checkpoint(self.method, self.seed, self.clock, m.iterations,
+                                              metrics.rmse(img, ref), metrics.relmse(img, ref, self.eps),
+                                              metrics.mean_luminance_bias(img, ref),
+                                              metrics.relmse_spread(img, ref, self.eps)))
+
+    def finish(self) -> tuple[list[Checkpoint], np.ndarray, dict]:
+        """(checkpoints, final image, statistics); releases the method."""
+        try:
+            return self.points, self.p.method.image().astype(np.float32), self.p.method.stats()
+        finally:
+            self.p.release()
+
+
+def measure(scene, method: str, reference: np.ndarray, budget: Budget, seed: int = 0, options=None,
+            max_depth=None) -> tuple[list[Checkpoint], np.ndarray, dict]:
+    run = _Run(scene, method, reference, budget, seed, options, max_depth)
+    try:
+        run.advance(math.inf)
+    except BaseException:
+        run.p.release()
+        raise
+    return run.finish()
+
+
+def measure_interleaved(scene, methods: list[str], reference: np.ndarray, budget: Budget, seed: int, options: dict,
+                        max_depth=None, rounds: int = INTERLEAVE_ROUNDS) -> list:
+    """measure() for every method at once, in `rounds` alternating rounds of an equal share of
+    the budget each (the order reversed every other round), so that a machine whose speed
+    drifts (a shared host's steal time) drifts for every method alike. Every method is
+    prepared and compiled first, and all stay in memory together. Returns measure()'s
+    results in `methods` order."""
+    runs = []
+    try:
+        for name in methods:
+            runs.append(_Run(scene, name, reference, budget, seed, options[name], max_depth))
+        total = runs[0].total
+        for r in range(1, rounds + 1):
+            for run in (runs if r % 2 else runs[::-1]):
+                run.advance(total * r / rounds if r < rounds else math.inf)
+    except BaseException:
+        for run in runs:
+            run.p.release()
+        raise
+    return [run.finish() for run in runs]
 
 
 def slope(points: list[Checkpoint], key="rmse") -> float | None:
@@ -193,23 +253,34 @@ def _interpolate(points: list[Checkpoint], t: float) -> float:
 
 
 def converge(scene, scene_label: str, methods: list[str], reference_path, budget: Budget, out_dir, seeds=(0,),
-             options=None, max_depth=None, log=print):
+             options=None, max_depth=None, log=print, interleave: bool = False):
     reference = imageio.read_image(reference_path)
     reference_noise = float(imageio.read_metadata(reference_path).get("noise_mse", 0.0))
     eps = metrics.relmse_epsilon(reference)
     seeds = list(seeds)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    # each method takes the options it knows (e.g. --chains goes to the guided methods only)
+    opts = {name: {k: v for k, v in (options or {}).items() if v is not None and k in method_class(name).OPTIONS}
+            for name in methods}
+    results = {name: {} for name in methods}        # name -> seed -> (points, image, stats)
+    if interleave:
+        for seed in seeds:
+            log(f"converge: {', '.join(methods)} interleaved, seed {seed} ...")
+            for name, result in zip(methods, measure_interleaved(scene, methods, reference, budget, seed, opts,
+                                                                 max_depth)):
+                results[name][seed] = result
+    else:
+        for name in methods:
+            for seed in seeds:
+                log(f"converge: {name}, seed {seed} ...")
+                results[name][seed] = measure(scene, name, reference, budget, seed=seed, options=opts[name],
+                                              max_depth=max_depth)
     by_method, spread, all_points = {}, {}, []
     for name in methods:
-        # each method takes the options it knows (e.g. --chains goes to the guided methods only)
-        known = method_class(name).OPTIONS
-        opts = {k: v for k, v in (options or {}).items() if v is not None and k in known}
         runs, images = [], []
         for seed in seeds:
-            log(f"converge: {name}, seed {seed} ...")
-            points, image, stats = measure(scene, name, reference, budget, seed=seed, options=opts,
-                                           max_depth=max_depth)
+            points, image, stats = results[name][seed]
             runs.append(points)
             images.append(image)
             all_points += points
@@ -225,7 +296,8 @@ def converge(scene, scene_label: str, methods: list[str], reference_path, budget
     budget_text = f"{budget.time:g} s" if budget.time is not None else f"{budget.iterations} iterations"
     seed_text = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {','.join(map(str, seeds))}"
     text = write_table(out_dir / "convergence.md", by_method,
-                       f"## {scene_label}: {', '.join(methods)} ({budget_text} each, {seed_text}; "
+                       f"## {scene_label}: {', '.join(methods)} ({budget_text} each, {seed_text}"
+                       + ("; interleaved" if interleave else "") + "; "
                        f"relMSE eps = ({metrics.RELMSE_FLOOR:g} x reference mean luminance)^2 = {eps:.3g}"
                        + (f"; the reference's own RMSE {math.sqrt(reference_noise):.3g}" if reference_noise > 0 else "")
                        + ")", spread, reference_noise)

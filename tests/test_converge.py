@@ -38,6 +38,30 @@ def test_converge_writes_csv_plot_and_table(tmp_path, capsys):
     assert "Equal-time ranking" in capsys.readouterr().out
 
 
+def test_interleaved_rounds_render_what_one_method_after_the_other_renders(tmp_path):
+    """--interleave (methods rendered together in alternating rounds): with an iteration
+    budget every method's images, iteration counts and errors at each checkpoint are those of
+    the plain run, method by method (the rounds change when each method runs, not what)."""
+    from photonmc import load_scene
+    p = prepare(load_scene(CORNELL, {"res": 16}), method="pt", seed=11)
+    ref = run(p, Budget(iterations=256), quiet=True).image
+    p.release()
+    write_image(tmp_path / "ref.exr", ref)
+    rows = {}
+    for mode in ("plain", "interleaved"):
+        out = tmp_path / mode
+        rc = main(["converge", CORNELL, "-D", "res=16", "--methods", "pt,sppm", "--reference", str(tmp_path / "ref.exr"),
+                   "--iterations", "20", "--seeds", "1,2", "--out", str(out)] + (["--interleave"] if mode != "plain" else []))
+        assert rc == 0
+        rows[mode] = sorted((r["method"], int(r["seed"]), int(r["iterations"]), r["rmse"])
+                            for r in csv.DictReader(open(out / "convergence.csv")))
+        assert ("; interleaved" in (out / "convergence.md").read_text()) == (mode != "plain")
+    assert rows["plain"] == rows["interleaved"] and len(rows["plain"]) > 8
+    for name in ("pt-seed1", "sppm-seed2"):
+        assert np.array_equal(read_image(tmp_path / "plain" / f"{name}.exr"),
+                              read_image(tmp_path / "interleaved" / f"{name}.exr"))
+
+
 def test_converge_rejects_a_reference_of_the_wrong_size(tmp_path, capsys):
     write_image(tmp_path / "ref.exr", np.zeros((8, 8, 3)))
     rc = main(["converge", CORNELL, "-D", "res=16", "--methods", "pt", "--reference", str(tmp_path / "ref.exr"),
