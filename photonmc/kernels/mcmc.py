@@ -108,10 +108,15 @@ class _ChainSource:
     def get(self, key, dim):
         slot = ti.cast(key[0], ti.i32)
         mode = ti.cast(key[3] % MODE_BITS, ti.i32)
-        v = rng.uniform(key[1] ^ ti.u32(FRESH_SALT), dim)     # a coordinate never read before
+        v = 0.0
+        # Each branch hashes only what it returns (the fresh coordinate was hashed for every
+        # read before, and overwritten in the other branches).
         if mode == UNIFORM_MODE or (mode == SUFFIX_MODE and dim >= ti.cast(key[3] // MODE_BITS, ti.i32)):
             v = rng.uniform(key[1], dim)
-        elif dim < self.pool.ell[slot] or (ti.static(self.pool.store_read) and dim == ti.static(self.pool.dims - 1)):
+        elif not (dim < self.pool.ell[slot] or
+                  (ti.static(self.pool.store_read) and dim == ti.static(self.pool.dims - 1))):
+            v = rng.uniform(key[1] ^ ti.u32(FRESH_SALT), dim)     # a coordinate never read before
+        else:
             v = self.pool.u[slot, dim]
             if mode == MUTATION_MODE:
                 theta = 0.0
