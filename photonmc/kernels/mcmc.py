@@ -179,8 +179,9 @@ def _chain_kernel_compilation():
 
 @data_oriented
 class ChainPool:
-    # The list of fields each pass clears (its fields are saved through their own attributes).
-    TRANSIENT = ("pass_tallies", "_readers", "_last_tallies")
+    # Rebuilt, not saved: the fields each pass clears (saved through their own attributes) and
+    # the prepared readers of the pass's tallies.
+    TRANSIENT = ("pass_tallies", "_readers")
 
     def __init__(self, n_chains: int, n_levels: int, dims: int, drop_failures: bool = False,
                  expected_values: bool = False, burn_in: float = 0.0, binary_base: bool = True,
@@ -294,7 +295,6 @@ class ChainPool:
         f.finalize()
         self.fields = f
         self._readers = {}          # FieldReaders of the tallies, by the caller's extra fields
-        self._last_tallies = None
         # Cleared at the start of every pass (_clear_pass_tallies).
         self.pass_tallies = (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.uniform_n,
                              self.reservoir_sum, self.reservoir_hits, self.adopted) + \
@@ -350,7 +350,7 @@ class ChainPool:
         base_records_in_burn_in it records the whole pass and exchanges it with level 1 only
         after the burn-in (mbe, docs/mbe.md).
 
-        Returns the pass's tallies (tallies()), read back by the same launch, with the
+        Returns the pass's tallies (_tallies), read back by the same launch, with the
         caller's `extra` fields (out["extra"])."""
         extra = tuple(extra)
         key = tuple(id(f) for f in extra)
@@ -363,12 +363,7 @@ class ChainPool:
         with _chain_kernel_compilation():
             self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, self.large_step,
                       self.mutation_probability, reader, ints, floats)
-        self._last_tallies = self._tallies(reader.unpack(ints, floats), len(extra))
-        return self._last_tallies
-
-    def tallies(self) -> dict:
-        """The last pass's figures (run_pass's result)."""
-        return self._last_tallies
+        return self._tallies(reader.unpack(ints, floats), len(extra))
 
     def _tallies(self, values: list, n_extra: int) -> dict:
         """This pass's figures: counters per level, recorded weight and mean T[l+1]/T[l], and
@@ -401,7 +396,7 @@ class ChainPool:
         """Adapt theta per level (and block) to this pass's acceptance. `uploads`: more
         (field, array) pairs the caller writes after the pass, sent in the same batch.
         upload=False (one mutation block only): theta_host changes and the caller writes it
-        to `theta` in a launch of its own before the next pass (write_theta), one launch
+        to `theta` from its own next kernel before the next pass (write_theta), one launch
         less per pass."""
         c = tallies["counters"]
         theta = self.theta_host
