@@ -80,10 +80,6 @@ class _Run:
         self.pending = _schedule(self.total, self.total / 64 if self.by_time else 1.0)
         self.points, self.clock = [], 0.0
 
-    @property
-    def done(self) -> bool:
-        return not self.pending
-
     def advance(self, until: float) -> None:
         """Iterate until the budget's measure (seconds or iterations) reaches `until` or the
         budget ends, comparing with the reference at each checkpoint passed."""

@@ -221,8 +221,8 @@ def test_batched_fills_uploads_and_downloads_match_one_field_at_a_time():
 
 def test_a_prepared_reader_reads_what_to_numpy_reads():
     """kernels/batch.py's FieldReader (a chain pass's tallies): integer and float fields,
-    scalars and vectors, interleaved in its list, read in its own launch and by `copy` in a
-    caller's kernel, each as field.to_numpy reads it (shape, dtype, every bit, including
+    scalars and vectors, interleaved in its list, read by `copy` in a caller's kernel, each
+    as field.to_numpy reads it (shape, dtype, every bit, including
     int64 values past 2^53 and u32 ones past 2^31)."""
     import taichi as ti
     from photonmc.kernels import batch
@@ -245,9 +245,8 @@ def test_a_prepared_reader_reads_what_to_numpy_reads():
 
     ints, floats = reader.arrays()
     caller(ints, floats)
-    for values in (reader.read(), reader.unpack(ints, floats)):
-        for f, a, got in zip(fields, arrays, values):
-            assert got.dtype == a.dtype and got.shape == a.shape and np.array_equal(got, a)
+    for f, a, got in zip(fields, arrays, reader.unpack(ints, floats)):
+        assert got.dtype == a.dtype and got.shape == a.shape and np.array_equal(got, a)
     with pytest.raises(ValueError, match="scalar and vector fields of i32, i64, u32, f32 or f64"):
         batch.FieldReader([fields[0], SimpleNamespace(dtype=ti.u8, shape=(2,))])
     g.release()

@@ -149,11 +149,14 @@ def test_camera_paths_auto_follows_where_the_error_is():
     assert chosen["cornell-box"] >= 4 and chosen["caustic"] <= 2
 
 
-def test_camera_paths_auto_keeps_the_furnace_and_reports_its_choice(write_scene):
+@pytest.mark.parametrize("balance", ["mse", "relmse"])
+def test_camera_paths_auto_keeps_the_furnace_and_reports_its_choice(write_scene, balance):
     """--camera-paths auto: K changes from pass to pass (MIS counts and pairing follow it);
-    the furnace keeps its analytic radiance, and the stats say what was chosen."""
+    the furnace keeps its analytic radiance, and the stats say what was chosen. With
+    --balance relmse the pass end weighs each pixel by its running mean (a kernel variant of
+    its own)."""
     scene = load_scene(write_scene(furnace_xml("sphere")))
-    r = render(scene, 40, seed=7, max_depth=3, camera_paths="auto")
+    r = render(scene, 40, seed=7, max_depth=3, camera_paths="auto", balance=balance)
     lum = luminance(r.image)
     expected = furnace_expectation(3)
     assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected, lum.mean()

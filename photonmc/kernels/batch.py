@@ -27,7 +27,7 @@ def _components(field) -> int:
     return field.n * field.m if isinstance(field, ti.MatrixField) else 1
 
 
-def _size(field) -> int:
+def scalar_count(field) -> int:
     """Scalars in the field, kept on the field object: Taichi's field.shape walks the SNode
     tree in Python, and the per-pass batches ask for it a few dozen times per iteration."""
     size = field.__dict__.get("_photonmc_size")
@@ -117,7 +117,7 @@ def _batches(items):
     """Runs of at most BATCH_FIELDS fields whose scalars fit one i32 loop."""
     out, run, total = [], [], 0
     for item in items:
-        n = _size(item[0])
+        n = scalar_count(item[0])
         if n >= 1 << 31:
             raise ValueError(f"a field of {n} scalars is more than one batched loop indexes (2^31)")
         if run and (len(run) == BATCH_FIELDS or total + n >= 1 << 31):
@@ -130,12 +130,12 @@ def _batches(items):
 
 def fill_fields(pairs) -> None:
     """field.fill(value) for every (field, value) in pairs, in one kernel launch per batch."""
-    pairs = [(f, v) for f, v in pairs if _size(f) > 0]
+    pairs = [(f, v) for f, v in pairs if scalar_count(f) > 0]
     for batch in _batches(pairs):
         plan, offset = [], 0
         for f, v in batch:
-            plan.append((offset, _size(f), float(v) if f.dtype in (ti.f32, ti.f64) else int(v)))
-            offset += _size(f)
+            plan.append((offset, scalar_count(f), float(v) if f.dtype in (ti.f32, ti.f64) else int(v)))
+            offset += scalar_count(f)
         _fill_batch(tuple(f for f, _ in batch), tuple(plan), offset, serial_loop(offset))
 
 
@@ -144,8 +144,8 @@ def upload_fields(pairs) -> None:
     by_dtype = OrderedDict()
     for f, a in pairs:
         a = np.asarray(a)
-        if a.size != _size(f):
-            raise ValueError(f"an array of {a.size} values for a field of {_size(f)}")
+        if a.size != scalar_count(f):
+            raise ValueError(f"an array of {a.size} values for a field of {scalar_count(f)}")
         by_dtype.setdefault(f.dtype, []).append((f, a))
     for dtype, items in by_dtype.items():
         for batch in _batches(items):
@@ -166,7 +166,7 @@ class FieldReader:
     """field.to_numpy() for a fixed list of scalar and vector fields, prepared once (a chain
     pass's tallies): integer fields read as int64 and float fields as float64 (exact) into
     two arrays, by `copy` at the top level of a caller's kernel, so that the caller's launch
-    also brings its tallies back, or by `read` in a launch of its own. Prepared, a read
+    also brings its tallies back. Prepared, a read
     passes one object and two arrays where download_fields passes every field and its plan
     as template arguments, whose extraction is most of a small launch's host time."""
 
@@ -193,12 +193,12 @@ class FieldReader:
     def _plan(fields):
         plan, offset = [], 0
         for f in fields:
-            plan.append((offset, _size(f)))
-            offset += _size(f)
+            plan.append((offset, scalar_count(f)))
+            offset += scalar_count(f)
         return tuple(plan), offset
 
     def arrays(self):
-        """Two arrays for `copy` or `read` to fill: (int64, float64)."""
+        """Two arrays for `copy` to fill: (int64, float64)."""
         return np.empty(max(self.n_ints, 1), np.int64), np.empty(max(self.n_floats, 1), np.float64)
 
     def unpack(self, ints, floats) -> list:
@@ -207,15 +207,6 @@ class FieldReader:
         data = (ints, floats)
         return [data[a][start:end].reshape(shape).astype(dtype, copy=False)
                 for a, start, end, shape, dtype in self._slices]
-
-    def read(self) -> list:
-        ints, floats = self.arrays()
-        self._read(ints, floats)
-        return self.unpack(ints, floats)
-
-    @ti.kernel
-    def _read(self, ints: ti.types.ndarray(), floats: ti.types.ndarray()):
-        self.copy(ints, floats)
 
     @ti.func
     def copy(self, ints: ti.template(), floats: ti.template()):
@@ -236,7 +227,7 @@ class FieldReader:
 
 
 def numpy_shape(field) -> tuple:
-    """The shape field.to_numpy() returns, without compiling its kernel (kept, as _size)."""
+    """The shape field.to_numpy() returns, without compiling its kernel (kept, as scalar_count)."""
     shape = field.__dict__.get("_photonmc_shape")
     if shape is None:
         shape = field._photonmc_shape = tuple(field.shape) + ((field.n,) if isinstance(field, ti.MatrixField) else ())
@@ -251,7 +242,7 @@ def download_fields(fields) -> list:
     for i, f in enumerate(fields):
         if isinstance(f, ti.MatrixField) and f.m != 1:
             raise ValueError("download_fields reads scalar and vector fields, not matrices")
-        if _size(f) == 0:
+        if scalar_count(f) == 0:
             out[i] = np.zeros(numpy_shape(f), NP_DTYPES[f.dtype])
         else:
             by_dtype.setdefault(f.dtype, []).append((f, i))
@@ -260,8 +251,8 @@ def download_fields(fields) -> list:
         for batch in _batches(items):
             plan, offset = [], 0
             for f, _ in batch:
-                plan.append((offset, _size(f)))
-                offset += _size(f)
+                plan.append((offset, scalar_count(f)))
+                offset += scalar_count(f)
             batches.append((batch, tuple(plan), np.empty(offset, NP_DTYPES[dtype])))
     for batch, plan, data in batches:
         _download_batch(tuple(f for f, _ in batch), plan, data, data.size, serial_loop(data.size))

@@ -60,7 +60,7 @@ import taichi as ti
 
 from .. import runtime
 from . import rng
-from .batch import FieldReader, fill_fields, upload_fields
+from .batch import FieldReader, fill_fields, scalar_count, upload_fields
 from .fields import FieldGroup
 from ..taichi_frontend import data_oriented
 
@@ -136,10 +136,6 @@ class _ChainSource:
                     if v >= 1.0:          # float rounding of a tiny negative value
                         v = 0.0
         return v
-
-
-def _field_size(f) -> int:
-    return int(np.prod(f.shape, dtype=np.int64))
 
 
 @ti.func
@@ -474,7 +470,7 @@ class ChainPool:
         launch and a batch of template arguments per pass, docs/performance.md): one loop
         per field, run before the ladders' loop, serially where short (runtime.serial_loop)."""
         for f in ti.static(self.pass_tallies):
-            ti.loop_config(serialize=ti.static(runtime.serial_loop(_field_size(f))))
+            ti.loop_config(serialize=ti.static(runtime.serial_loop(scalar_count(f))))
             for i in ti.grouped(ti.ndrange(*f.shape)):
                 f[i] = 0
 

@@ -451,7 +451,7 @@ class Mbe(Vcm):
         w = ti.static(self.dscene.width)
         y_weights = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
         inv_samples = 1.0 / ti.cast(ti.max(samples, 1), ti.f64)
-        eps = 1e-30
+        eps = ti.f64(1e-30)
         if ti.static(relative):
             mean_all = ti.f64(0.0)
             ti.loop_config(serialize=True)
