@@ -5,7 +5,7 @@ two cells' statistics, so a small share of points may differ; the checks allow 1
 import numpy as np
 import pytest
 
-from photonmc.methods.clusters import MORTON_BITS, HitDensityClusters, _morton
+from photonmc.methods.clusters import MAX_LEVELS, HitDensityClusters
 
 LEVELS = 10
 
@@ -21,15 +21,6 @@ def _points(rng, n):
 def _cells(pos, level, clusters):
     base = (pos - clusters.lo) / clusters.size
     return np.clip(np.floor(base * (1 << level)).astype(np.int64), 0, (1 << level) - 1)
-
-
-def test_morton_codes_nest_coarser_cells_as_prefixes():
-    rng = np.random.default_rng(0)
-    cells = rng.integers(0, 512, (1000, 3))
-    code = _morton(cells)
-    for shift in range(1, 9):
-        np.testing.assert_array_equal(code >> (3 * shift), _morton(cells >> shift))
-    assert len(np.unique(code)) == len(np.unique(cells, axis=0))
 
 
 def test_density_is_the_hit_rate_of_the_finest_cell():
@@ -87,9 +78,9 @@ def test_a_point_reads_the_finest_cell_with_enough_samples():
     assert len(np.unique(chosen)) >= 3 and (chosen >= 0).all()     # several levels are read
 
 
-def test_more_levels_than_the_morton_codes_hold_are_refused():
-    """The finest level's cells are Morton codes of MORTON_BITS bits per axis: a level beyond
+def test_more_levels_than_the_cells_hold_are_refused():
+    """The finest level's cells have at most MAX_LEVELS - 1 bits per axis: a level beyond
     them would alias cells instead of failing."""
-    HitDensityClusters(np.zeros(3), np.ones(3), 16, levels=MORTON_BITS + 1)
+    HitDensityClusters(np.zeros(3), np.ones(3), 16, levels=MAX_LEVELS).release()
     with pytest.raises(ValueError, match="levels"):
-        HitDensityClusters(np.zeros(3), np.ones(3), 16, levels=MORTON_BITS + 2)
+        HitDensityClusters(np.zeros(3), np.ones(3), 16, levels=MAX_LEVELS + 1)

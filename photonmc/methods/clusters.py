@@ -8,116 +8,198 @@ gathered `min_samples` distinct photon hits.
 Why this and not the paper code's median k-d tree: MPs are regenerated every pass, so
 clusters must be fixed in world space to carry statistics from pass to pass. A k-d tree
 built from the first pass's MPs fixes its cells to that pass's sample; the octree needs no
-build, refines only where hits accumulate (the "enough samples before splitting" rule of the
-paper's iterationvalid/variance strategies), and is a few numpy calls per pass. Cells are 3D,
-so unlike image-plane clusters they do not mix surfaces across depth discontinuities.
-Hash collisions merge two cells' statistics; that changes the importance (variance), never
-the estimate (any positive target is unbiased).
+build and refines only where hits accumulate (the "enough samples before splitting" rule of
+the paper's iterationvalid/variance strategies). Cells are 3D, so unlike image-plane
+clusters they do not mix surfaces across depth discontinuities. Hash collisions merge two
+cells' statistics; that changes the importance (variance), never the estimate (any positive
+target is unbiased).
+
+The table lives in Taichi fields and is read and filled by ti.funcs that the spatial
+target's kernels call on its MP fields directly (methods/guided.py): the same work in NumPy
+(a Morton sort of the MPs and grouped reductions per level) was a third of a spatial-tf
+iteration on the 64x64 Cornell box with 19 camera paths per pixel (docs/performance.md,
+"The spatial target's clusters in kernels"). A pass's hits are summed per cell in a serial
+loop, so the statistics, and the image, do not depend on thread timing.
 """
-from __future__ import annotations
 
 import numpy as np
+import taichi as ti
 
-_PRIMES = np.array([73856093, 19349663, 83492791], np.int64)
-MORTON_BITS = 10      # bits per axis of _morton's codes: the finest level has 2^(levels - 1) cells per axis
+from ..kernels.fields import FieldGroup
+from ..taichi_frontend import data_oriented
 
-
-def _morton(cells: np.ndarray) -> np.ndarray:
-    """Morton (Z-order) codes of integer cells (n, 3) of up to 10 bits per axis: the bits of
-    x, y and z interleaved, so that the code of a cell at a coarser level is a prefix."""
-    code = np.zeros(len(cells), np.int64)
-    for axis in range(3):
-        v = cells[:, axis].astype(np.int64) & ((1 << MORTON_BITS) - 1)
-        v = (v | (v << 16)) & 0x030000FF
-        v = (v | (v << 8)) & 0x0300F00F
-        v = (v | (v << 4)) & 0x030C30C3
-        v = (v | (v << 2)) & 0x09249249
-        code |= v << (2 - axis)
-    return code
+PRIMES = (73856093, 19349663, 83492791)
+LEVEL_SALT = 0x9E3779B1
+MAX_LEVELS = 11       # cells of up to 10 bits per axis at the finest level
+UNKNOWN = -1.0        # the density of a point whose cells have too few samples
 
 
+@data_oriented
 class HitDensityClusters:
-    TRANSIENT = ("_cached",)     # a render state keeps the statistics, not the last pass's slots
+    # Zero between passes (close_pass empties them), so a render state need not keep them.
+    TRANSIENT = ("pass_sums", "touched", "n_touched")
 
     def __init__(self, lo, hi, n_points: int, levels: int = 10, min_samples: float = 64.0):
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
         self.lo = lo
         self.size = float(max((hi - lo).max(), 1e-12)) * 1.0001
-        if not 1 <= levels <= MORTON_BITS + 1:
-            raise ValueError(f"levels must be 1 to {MORTON_BITS + 1} (Morton codes of {MORTON_BITS} bits per axis)")
+        if not 1 <= levels <= MAX_LEVELS:
+            raise ValueError(f"levels must be 1 to {MAX_LEVELS} (cells of at most {MAX_LEVELS - 1} bits per axis)")
         self.levels = levels
         self.min_samples = float(min_samples)
-        bits = int(np.clip(np.ceil(np.log2(max(8 * n_points * levels, 1024))), 10, 22))
-        self.mask = (1 << bits) - 1
-        n = 1 << bits
-        self.kappa = np.zeros(n)            # sum over passes of (hits / area) in the cell
-        self.passes = np.zeros(n, np.int64)  # passes in which the cell held MPs
-        self.samples = np.zeros(n)          # distinct chain states that hit the cell's MPs
-        self._cached = None                 # (points, their slots per level): see _level_slots
+        # Each level has a table of its own, so that the levels fill in parallel and every
+        # slot is written by one thread in a fixed order (determinism). A level with at most
+        # `hashed` cells indexes them directly (no collisions); a finer one hashes its cells
+        # into `hashed` slots.
+        hashed = 1 << int(np.clip(np.ceil(np.log2(max(2 * n_points * levels, 1024))), 10, 21))
+        sizes = [min(8 ** level, hashed) for level in range(levels)]
+        self.level_size = tuple(sizes)
+        self.level_offset = tuple(int(x) for x in np.concatenate(([0], np.cumsum(sizes)[:-1])))
+        n = int(sum(sizes))
+        f = FieldGroup("clusters")
+        # Per slot: the sum over passes of (hits / area) in the cell (kappa), the passes in
+        # which it held MPs, and the distinct chain states that hit its MPs.
+        self.stats = f.vector(3, ti.f64, n)
+        self.pass_sums = f.vector(3, ti.f64, n)     # this pass's hits, area, samples per slot
+        self.touched = f.scalar(ti.i32, n)          # per level, the slots this pass filled, in order
+        self.n_touched = f.scalar(ti.i32, levels)
+        # The cube's corner and side: a field, not constants, so that the kernels compile
+        # once for every scene of the same size.
+        self.frame = f.vector(4, ti.f64, (), values=np.append(lo, self.size))
+        # Per level: its table's offset, its size, and whether it indexes cells directly.
+        self.level_table = f.vector(3, ti.i32, levels, values=np.array(
+            [(o, z, 8 ** level <= z) for level, (o, z) in enumerate(zip(self.level_offset, sizes))], np.int32))
+        f.finalize()
+        self.fields = f
 
-    def _levels(self, pos: np.ndarray) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
-        """The points' cells at every level, from one sort: (order, [(run starts, table slots)
-        per level]). The points are sorted once by the Morton code of their finest cell; a
-        coarser level's cell is a prefix of that code, so each level's cells are runs of the
-        sorted points, and only a run's first point is hashed. (Ten sorts, one per level, and
-        hashing every point at every level were 35-40 % of a spatial-tf iteration on the
-        Cornell box at 64x64 with 18 camera paths per pixel; docs/performance.md.) A pass
-        asks twice for the same points (density before it, accumulate after), so the last
-        answer is kept."""
-        if self._cached is not None and self._cached[0] is pos:
-            return self._cached[1]
-        finest = self.levels - 1
-        base = (pos - self.lo) / self.size          # x 2^level below is exact, so cells are as before
-        cells = np.clip(np.floor(base * (1 << finest)).astype(np.int64), 0, (1 << finest) - 1)
-        code = _morton(cells)
-        order = np.argsort(code, kind="stable")
-        cells, code = cells[order], code[order]
-        out = []
-        for level in range(self.levels):
-            shift = finest - level
-            key = code >> (3 * shift)
-            starts = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1]))) if len(key) else key
-            c = cells[starts] >> shift                  # = floor(base * 2^level), clipped
-            h = (c[:, 0] * _PRIMES[0] + c[:, 1] * _PRIMES[1] + c[:, 2] * _PRIMES[2]) \
-                ^ (np.int64(level) * np.int64(0x9E3779B1))
-            out.append((starts, (h ^ (h >> 17)) & self.mask))
-        self._cached = (pos, (order, out))
-        return order, out
-
-    def accumulate(self, pos, area, hits, samples) -> None:
-        """One pass: pos, area (pi R^2), hits (uniform-path-equivalent hits this pass) and
-        samples (distinct states) of the valid MPs. Per cell: kappa += its hits / its area;
-        two cells that share a table slot add up there (a collision changes the importance,
-        never the estimate)."""
-        if len(pos) == 0:
-            return
-        order, levels = self._levels(pos)
-        area, hits, samples = (np.asarray(x, np.float64)[order] for x in (area, hits, samples))
-        for starts, slots in levels:
-            a = np.add.reduceat(area, starts)
-            np.add.at(self.kappa, slots, np.add.reduceat(hits, starts) / np.maximum(a, 1e-300))
-            self.passes[slots] += 1          # once per pass, however many cells share the slot
-            np.add.at(self.samples, slots, np.add.reduceat(samples, starts))
-
-    def density(self, pos) -> np.ndarray:
-        """Hits per unit area per pass at each point, from the finest trusted cell; NaN where
-        no level has enough samples yet."""
-        n = len(pos)
-        if n == 0:
-            return np.full(0, np.nan)
-        order, levels = self._levels(pos)
-        rho_sorted = np.full(n, np.nan)
-        for starts, slots in levels:              # coarse to fine: the finest trusted one stays
-            trusted = (self.samples[slots] >= self.min_samples) & (self.passes[slots] > 0)
-            value = np.where(trusted, self.kappa[slots] / np.maximum(self.passes[slots], 1), np.nan)
-            per_point = np.repeat(value, np.diff(np.append(starts, n)))
-            keep = ~np.isnan(per_point)
-            rho_sorted[keep] = per_point[keep]
-        rho = np.empty(n)
-        rho[order] = rho_sorted
-        return rho
+    def release(self):
+        self.fields.release()
 
     def reset(self):
-        for a in (self.kappa, self.passes, self.samples):
-            a[:] = 0
-        self._cached = None
+        self.stats.fill(0.0)
+        self.pass_sums.fill(0.0)
+        self.n_touched.fill(0)
+
+    # -- the table, for kernels ----------------------------------------------------------------
+    @ti.func
+    def _finest_cell(self, p):
+        fr = self.frame[None]
+        cells = ti.Vector([0, 0, 0], ti.i64)
+        top = ti.i64(1 << ti.static(self.levels - 1)) - 1
+        for k in ti.static(range(3)):
+            base = (ti.cast(p[k], ti.f64) - fr[k]) / fr[3]
+            cells[k] = ti.math.clamp(ti.cast(ti.floor(base * ti.static(float(1 << (self.levels - 1)))), ti.i64),
+                                     0, top)
+        return cells
+
+    @ti.func
+    def _slot(self, finest_cells, level) -> ti.i32:
+        """The table slot of the level's cell around a point whose finest cell is given."""
+        lv = ti.cast(level, ti.i64)
+        c = finest_cells >> (ti.static(self.levels - 1) - lv)
+        table = self.level_table[level]
+        index = ti.i64(0)
+        if table[2]:
+            index = c[0] + (c[1] << lv) + (c[2] << (2 * lv))      # every cell its own slot
+        else:
+            h = (c[0] * PRIMES[0] + c[1] * PRIMES[1] + c[2] * PRIMES[2]) ^ (ti.i64(LEVEL_SALT) * (lv + 1))
+            index = (h ^ (h >> 17)) & (table[1] - 1)
+        return table[0] + ti.cast(index, ti.i32)
+
+    @ti.func
+    def density_at(self, p) -> ti.f64:
+        """Hits per unit area per pass at p, from the finest cell with enough samples (and at
+        least one pass); UNKNOWN where none has."""
+        cells = self._finest_cell(p)
+        rho = ti.f64(UNKNOWN)
+        found = False
+        level = ti.cast(ti.static(self.levels - 1), ti.i32)          # finest first
+        while level >= 0 and not found:
+            st = self.stats[self._slot(cells, level)]
+            if st[2] >= ti.static(self.min_samples) and st[1] > 0.0:
+                rho = st[0] / st[1]
+                found = True
+            level -= 1
+        return rho
+
+    @ti.func
+    def accumulate_points(self, points: ti.template(), n):
+        """One pass's hits from n points: `points.cluster_point(j)` gives (valid, position,
+        area pi R^2, hits, samples) of point j. Per cell, the pass sums of its points' hits,
+        area and samples; close_pass turns them into statistics. The levels run in parallel,
+        each over the points in their order: every sum is made in one fixed order."""
+        ti.loop_config(block_dim=1)        # a level per task: the levels are few and long
+        for level in range(self.levels):
+            offset = self.level_table[level][0]
+            for j in range(n):
+                valid, p, area, hits, samples = points.cluster_point(j)
+                if valid and area > 0.0:
+                    s = self._slot(self._finest_cell(p), level)
+                    sums = self.pass_sums[s]
+                    if sums[1] == 0.0:     # first point in this slot this pass (areas are > 0)
+                        self.touched[offset + self.n_touched[level]] = s
+                        self.n_touched[level] += 1
+                    self.pass_sums[s] = sums + ti.Vector([hits, area, samples], ti.f64)
+
+    @ti.func
+    def close_pass(self):
+        """Per slot filled this pass: kappa += its hits / its area, one more pass, its samples;
+        its pass sums emptied. Two cells that share a slot add up there (a collision changes
+        the importance, never the estimate)."""
+        ti.loop_config(block_dim=1)
+        for level in range(self.levels):
+            offset = self.level_table[level][0]
+            for i in range(self.n_touched[level]):
+                s = self.touched[offset + i]
+                sums = self.pass_sums[s]
+                self.stats[s] += ti.Vector([sums[0] / sums[1], 1.0, sums[2]], ti.f64)
+                self.pass_sums[s] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            self.n_touched[level] = 0
+
+    # -- the same, for arrays (tests and tools) ------------------------------------------------
+    def accumulate(self, pos, area, hits, samples) -> None:
+        """One pass from arrays: pos (n, 3), area (pi R^2), hits (uniform-path-equivalent hits
+        this pass) and samples (distinct states) of the valid MPs."""
+        if len(pos) == 0:
+            return
+        points = ArrayPoints(pos, area, hits, samples)
+        self._accumulate(points, len(pos))
+        points.release()
+
+    def density(self, pos) -> np.ndarray:
+        """density_at for an array of points; NaN where no level has enough samples yet."""
+        rho = np.empty(len(pos))
+        if len(pos):
+            self._density(np.ascontiguousarray(pos, np.float64), rho)
+        return np.where(rho == UNKNOWN, np.nan, rho)
+
+    @ti.kernel
+    def _accumulate(self, points: ti.template(), n: ti.i32):
+        self.accumulate_points(points, n)
+        self.close_pass()
+
+    @ti.kernel
+    def _density(self, pos: ti.types.ndarray(), rho: ti.types.ndarray()):
+        for j in range(pos.shape[0]):
+            rho[j] = self.density_at(ti.Vector([pos[j, 0], pos[j, 1], pos[j, 2]]))
+
+
+@data_oriented
+class ArrayPoints:
+    """Points given as arrays, in the form accumulate_points reads (tests and tools)."""
+
+    def __init__(self, pos, area, hits, samples):
+        n = len(pos)
+        f = FieldGroup("cluster-points")
+        self.pos = f.vector(3, ti.f64, n, values=np.asarray(pos, np.float64))
+        self.values = f.vector(3, ti.f64, n, values=np.stack([area, hits, samples], axis=1).astype(np.float64))
+        f.finalize()
+        self.fields = f
+
+    def release(self):
+        self.fields.release()
+
+    @ti.func
+    def cluster_point(self, j):
+        v = self.values[j]
+        return True, self.pos[j], v[0], v[1], v[2]

@@ -42,7 +42,7 @@ from ..kernels.mcmc import (
     ChainPool,
 )
 from ..kernels.photon import BOUNCE_DIMS, LIGHT_DIMS, dimensions, photon_segments, trace_photon
-from .clusters import HitDensityClusters
+from .clusters import UNKNOWN, HitDensityClusters
 from .effort import UniformWeight, uniform_weight_option
 from .sppm import FIXED_ONE, Sppm
 from ..taichi_frontend import data_oriented
@@ -159,6 +159,9 @@ class GuidedPhotons(Sppm):
             self.inv_area = f.scalar(ti.f32, n)
             self.importance = f.scalar(ti.f32, n)
             self.hits = f.scalar(ti.i64, (L, n))
+            self.rho = f.scalar(ti.f64, n)                # each MP's cluster density this pass
+            self.mp_hit_stats = f.vector(2, ti.f64, n)    # each MP's hits and samples this pass
+            self.target_sums = f.vector(5, ti.f64, ())    # _spatial_targets' maxima and sums
         f.finalize()
         self.guide_fields = f
         self._reset_guided()
@@ -395,7 +398,8 @@ class SpatialTarget(GuidedPhotons):
     level_names = ("visibility", "inverse-area", "spatial")
     OPTIONS = {**GuidedPhotons.OPTIONS, "path_target": "max"}
     # this pass's MPs and per-MP targets, set by _prepare_targets, and their hit counts
-    TRANSIENT = Sppm.TRANSIENT + ("_valid", "_pos", "_area", "_n_points", "inv_area", "importance", "hits")
+    TRANSIENT = Sppm.TRANSIENT + ("_n_points", "inv_area", "importance", "hits", "rho", "target_sums",
+                                    "mp_hit_stats")
 
     def __init__(self, dscene, settings):
         path_target = {**self.OPTIONS, **{k: v for k, v in settings.options.items() if v is not None}}["path_target"]
@@ -405,76 +409,98 @@ class SpatialTarget(GuidedPhotons):
         super().__init__(dscene, settings)
         lo, hi = dscene.scene.bounds
         self.clusters = HitDensityClusters(lo, hi, self.n_pixels)
-        self._valid = None
         self._n_points = 0
+
+    def release(self):
+        self.clusters.release()
+        super().release()
 
     def _reset(self):
         super()._reset()
         self.clusters.reset()
 
     def _prepare_targets(self):
-        # Only this pass's MPs cross to the host: the fields are sized for the most camera
-        # paths the balance may choose (2^20 points), and copying all of them every pass cost
-        # about 40 ms of a 260 ms iteration (docs/performance.md, "Where the time goes").
-        n = self._n_points = self.camera_paths * self.n_pixels
-        valid, pos, radius = np.empty(n, np.int32), np.empty((n, 3), np.float32), np.empty(n, np.float32)
-        self._export_points(n, valid, pos, radius)
-        valid = valid.astype(bool)
-        pos = pos[valid].astype(np.float64)
-        area = math.pi * radius[valid].astype(np.float64) ** 2
-        inv_area = np.zeros(n, np.float32)
-        importance = np.zeros(n, np.float32)
-        if valid.any():
-            ia = 1.0 / (area / area.max() + EPS_AREA)
-            rho = self.clusters.density(pos)
-            known = np.isfinite(rho)
-            imp = ia.copy()
-            if known.any():
-                rho_max = rho[known].max()
-                rho = np.where(known, rho, rho_max)        # no statistics yet: lowest importance
-                imp = ia / (rho / max(rho_max, 1e-300) + EPS_DENSITY)
-            inv_area[valid] = ia / ia.mean()
-            importance[valid] = imp / imp.mean()
-        # Entries past n keep older values: no grid of this pass holds them, so none is read.
-        self._import_targets(n, inv_area, importance)
-        self._valid, self._pos, self._area = valid, pos, area
+        self._n_points = self.camera_paths * self.n_pixels
+        self._spatial_targets(self._n_points)
 
     def _after_pass(self, level_scale):
-        n = self._n_points
-        hits = np.empty((self.n_levels, n), np.int64)
-        photons = np.empty(n, np.int64)
-        self._export_hits(n, hits, photons)       # and clears the hit counts
-        hits = hits.astype(np.float64) / FIXED_ONE
-        per_mp = (hits * level_scale[:, None]).sum(axis=0)
-        # A photon deposits into each of a pixel's K MPs: count it once per pixel, so that
-        # a cluster is trusted after as many photons whatever K (clusters.py, min_samples).
-        samples = photons.astype(np.float64) / self.camera_paths
-        v = self._valid
-        self.clusters.accumulate(self._pos, self._area, per_mp[v], samples[v])
+        # Only the first camera path's MPs (one per pixel) feed the statistics: a cell's
+        # hits per area are estimated as well from any subset of its MPs chosen without
+        # regard to the photons (more noisily; the importance need only be positive for the
+        # estimate to stay unbiased), and a photon is then counted once per pixel whatever
+        # K (clusters.py, min_samples). All K paths' MPs made the statistics cost a fifth of
+        # a spatial-tf pass on the Cornell box at K = 21 (docs/performance.md).
+        self._hit_statistics(self._n_points, ti.Vector(list(level_scale / FIXED_ONE)))
 
     @ti.kernel
-    def _export_points(self, n: ti.i32, valid: ti.types.ndarray(), pos: ti.types.ndarray(),
-                       radius: ti.types.ndarray()):
+    def _spatial_targets(self, n: ti.i32):
+        """Per MP in use: the inverse-area target and the spatial importance
+        I_j = 1/(A_j/A_max + EPS_AREA) / (rho_j/rho_max + EPS_DENSITY) (docs/guiding.md, "The
+        spatial importance"), each normalised to mean 1 over the valid MPs. A point whose
+        cells have too few samples gets rho_max (the lowest importance); with no statistics
+        anywhere yet, I_j is the inverse-area term alone. Entries past n keep older values: no
+        grid of this pass holds them, so none is read."""
+        # A_max, rho_max, then the sums of both targets over the valid MPs and their count
+        self.target_sums[None] = ti.Vector([0.0, UNKNOWN, 0.0, 0.0, 0.0], ti.f64)
         for j in range(n):
-            valid[j] = self.mp_valid[j]
-            radius[j] = self.mp_radius[j]
-            p = self.mp_p[j]
-            for k in ti.static(range(3)):
-                pos[j, k] = p[k]
+            if self.mp_valid[j]:
+                self.rho[j] = self.clusters.density_at(self.mp_p[j])
+        ti.loop_config(serialize=True)     # one thread: no atomics on the two maxima
+        for j in range(n):
+            if self.mp_valid[j]:
+                r = ti.cast(self.mp_radius[j], ti.f64)
+                sums = self.target_sums[None]
+                self.target_sums[None][0] = ti.max(sums[0], math.pi * r * r)
+                self.target_sums[None][1] = ti.max(sums[1], self.rho[j])
+        ti.loop_config(serialize=True)     # float sums in a fixed order (determinism)
+        for j in range(n):
+            if self.mp_valid[j]:
+                ia, imp = self._area_and_importance(j)
+                self.target_sums[None] += ti.Vector([0.0, 0.0, ia, imp, 1.0], ti.f64)
+        for j in range(n):
+            ia, imp = ti.f64(0.0), ti.f64(0.0)
+            if self.mp_valid[j]:
+                sums = self.target_sums[None]
+                ia, imp = self._area_and_importance(j)
+                ia *= sums[4] / sums[2]
+                imp *= sums[4] / sums[3]
+            self.inv_area[j] = ti.cast(ia, ti.f32)
+            self.importance[j] = ti.cast(imp, ti.f32)
+
+    @ti.func
+    def _area_and_importance(self, j):
+        r = ti.cast(self.mp_radius[j], ti.f64)
+        sums = self.target_sums[None]
+        ia = 1.0 / (math.pi * r * r / sums[0] + EPS_AREA)
+        imp = ia
+        rho_max = sums[1]
+        if rho_max != UNKNOWN:
+            rho = self.rho[j]
+            if rho == UNKNOWN:
+                rho = rho_max      # no statistics yet: lowest importance
+            imp = ia / (rho / ti.max(rho_max, 1e-300) + EPS_DENSITY)
+        return ia, imp
 
     @ti.kernel
-    def _import_targets(self, n: ti.i32, inv_area: ti.types.ndarray(), importance: ti.types.ndarray()):
+    def _hit_statistics(self, n: ti.i32, level_scale: ti.types.vector(3, ti.f64)):
+        """This pass's hits into the clusters (uniform-path equivalents: each level's
+        fixed-point hits times its scale) from the first camera path's MPs, and the hit
+        counts of all n MPs cleared for the next pass."""
         for j in range(n):
-            self.inv_area[j] = inv_area[j]
-            self.importance[j] = importance[j]
-
-    @ti.kernel
-    def _export_hits(self, n: ti.i32, hits: ti.types.ndarray(), photons: ti.types.ndarray()):
-        for j in range(n):
-            photons[j] = self.M[j]
+            hits = ti.f64(0.0)
             for level in ti.static(range(self.n_levels)):
-                hits[level, j] = self.hits[level, j]
+                hits += ti.cast(self.hits[level, j], ti.f64) * level_scale[level]
                 self.hits[level, j] = 0
+            self.mp_hit_stats[j] = ti.Vector([hits, ti.cast(self.M[j], ti.f64)], ti.f64)
+        self.clusters.accumulate_points(self, ti.min(n, ti.static(self.n_pixels)))
+        self.clusters.close_pass()
+
+    @ti.func
+    def cluster_point(self, j):
+        """MP j for the clusters (clusters.accumulate_points), after _hit_statistics' first loop."""
+        r = ti.cast(self.mp_radius[j], ti.f64)
+        h = self.mp_hit_stats[j]
+        return self.mp_valid[j] != 0, self.mp_p[j], math.pi * r * r, h[0], h[1]
 
     def progress_fields(self) -> str:
         swaps = self.totals[:, SWAPS_ACCEPTED] / np.maximum(self.totals[:, SWAPS_TRIED], 1)
