@@ -51,7 +51,9 @@ class HitDensityClusters:
         # slot is written by one thread in a fixed order (determinism). A level with at most
         # `hashed` cells indexes them directly (no collisions); a finer one hashes its cells
         # into `hashed` slots.
-        hashed = 1 << int(np.clip(np.ceil(np.log2(max(2 * n_points * levels, 1024))), 10, 21))
+        # Memory: 52 bytes a slot; 3.4 M slots (175 MB) for the 256x256 default render, whose
+        # single shared table of 4 M slots in NumPy took 100 MB (docs/performance.md).
+        hashed = 1 << int(np.clip(np.ceil(np.log2(max(n_points * levels, 1024))), 10, 20))
         sizes = [min(8 ** level, hashed) for level in range(levels)]
         self.level_size = tuple(sizes)
         self.level_offset = tuple(int(x) for x in np.concatenate(([0], np.cumsum(sizes)[:-1])))

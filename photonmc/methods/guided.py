@@ -160,7 +160,7 @@ class GuidedPhotons(Sppm):
             self.importance = f.scalar(ti.f32, n)
             self.hits = f.scalar(ti.i64, (L, n))
             self.rho = f.scalar(ti.f64, n)                # each MP's cluster density this pass
-            self.mp_hit_stats = f.vector(2, ti.f64, n)    # each MP's hits and samples this pass
+            self.mp_hit_stats = f.vector(2, ti.f64, self.n_pixels)   # hits and samples of the first path's MPs
             self.target_sums = f.vector(5, ti.f64, ())    # _spatial_targets' maxima and sums
         f.finalize()
         self.guide_fields = f
@@ -491,7 +491,8 @@ class SpatialTarget(GuidedPhotons):
             for level in ti.static(range(self.n_levels)):
                 hits += ti.cast(self.hits[level, j], ti.f64) * level_scale[level]
                 self.hits[level, j] = 0
-            self.mp_hit_stats[j] = ti.Vector([hits, ti.cast(self.M[j], ti.f64)], ti.f64)
+            if j < ti.static(self.n_pixels):
+                self.mp_hit_stats[j] = ti.Vector([hits, ti.cast(self.M[j], ti.f64)], ti.f64)
         self.clusters.accumulate_points(self, ti.min(n, ti.static(self.n_pixels)))
         self.clusters.close_pass()
 
