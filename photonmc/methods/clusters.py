@@ -1,9 +1,9 @@
 """Photon-hit density per world-space cluster, for the spatial target (Gruson et al. 2016, §3.3).
 
-Structure: an implicit octree over the scene's bounding cube, stored as a hash table keyed
-by (level, cell). Level L cuts the cube into 2^L cells per axis; every level accumulates at
-once, and a measurement point (MP) reads the density of the finest cell around it that has
-gathered `min_samples` distinct photon hits.
+Structure: an implicit octree over the scene's bounding cube, a table per level (a coarse
+level indexes its cells, a fine one hashes them). Level L cuts the cube into 2^L cells per
+axis; every level accumulates at once, and a measurement point (MP) reads the density of the
+finest cell around it that has gathered `min_samples` distinct photon hits.
 
 Why this and not the paper code's median k-d tree: MPs are regenerated every pass, so
 clusters must be fixed in world space to carry statistics from pass to pass. A k-d tree
@@ -18,8 +18,9 @@ The table lives in Taichi fields and is read and filled by ti.funcs that the spa
 target's kernels call on its MP fields directly (methods/guided.py): the same work in NumPy
 (a Morton sort of the MPs and grouped reductions per level) was a third of a spatial-tf
 iteration on the 64x64 Cornell box with 19 camera paths per pixel (docs/performance.md,
-"The spatial target's clusters in kernels"). A pass's hits are summed per cell in a serial
-loop, so the statistics, and the image, do not depend on thread timing.
+"The spatial target's clusters in kernels"). The levels fill in parallel, each level's
+cells summed over the points in their order, so the statistics, and the image, do not
+depend on thread timing.
 """
 
 import numpy as np
@@ -55,8 +56,7 @@ class HitDensityClusters:
         # single shared table of 4 M slots in NumPy took 100 MB (docs/performance.md).
         hashed = 1 << int(np.clip(np.ceil(np.log2(max(n_points * levels, 1024))), 10, 20))
         sizes = [min(8 ** level, hashed) for level in range(levels)]
-        self.level_size = tuple(sizes)
-        self.level_offset = tuple(int(x) for x in np.concatenate(([0], np.cumsum(sizes)[:-1])))
+        offsets = np.concatenate(([0], np.cumsum(sizes)[:-1]))
         n = int(sum(sizes))
         f = FieldGroup("clusters")
         # Per slot: the sum over passes of (hits / area) in the cell (kappa), the passes in
@@ -70,7 +70,7 @@ class HitDensityClusters:
         self.frame = f.vector(4, ti.f64, (), values=np.append(lo, self.size))
         # Per level: its table's offset, its size, and whether it indexes cells directly.
         self.level_table = f.vector(3, ti.i32, levels, values=np.array(
-            [(o, z, 8 ** level <= z) for level, (o, z) in enumerate(zip(self.level_offset, sizes))], np.int32))
+            [(o, z, 8 ** level <= z) for level, (o, z) in enumerate(zip(offsets, sizes))], np.int32))
         f.finalize()
         self.fields = f
 

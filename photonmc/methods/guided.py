@@ -158,7 +158,7 @@ class GuidedPhotons(Sppm):
         if L > 1:
             self.inv_area = f.scalar(ti.f32, n)
             self.importance = f.scalar(ti.f32, n)
-            self.hits = f.scalar(ti.i64, (L, n))
+            self.hits = f.scalar(ti.i64, (L, self.n_pixels))   # the first camera path's MPs (_after_pass)
             self.rho = f.scalar(ti.f64, n)                # each MP's cluster density this pass
             self.mp_hit_stats = f.vector(2, ti.f64, self.n_pixels)   # hits and samples of the first path's MPs
             self.target_sums = f.vector(5, ti.f64, ())    # _spatial_targets' maxima and sums
@@ -252,10 +252,11 @@ class GuidedPhotons(Sppm):
                 elif self.deposit_at(j, wi, beta, fw, vkey & 1):
                     hit = 1
                     if ti.static(self.n_levels > 1):
-                        for level in ti.static(range(self.n_levels)):
-                            if hw[level] > 0.0:
-                                ti.atomic_add(self.hits[level, j],
-                                              ti.cast(ti.cast(hw[level], ti.f64) * FIXED_ONE + 0.5, ti.i64))
+                        if j < ti.static(self.n_pixels):     # the statistics read the first camera path's MPs only
+                            for level in ti.static(range(self.n_levels)):
+                                if hw[level] > 0.0:
+                                    ti.atomic_add(self.hits[level, j],
+                                                  ti.cast(ti.cast(hw[level], ti.f64) * FIXED_ONE + 0.5, ti.i64))
         if probing and hit:
             t[0] = 1.0
             self.target_scratch[vkey] = t
@@ -398,7 +399,7 @@ class SpatialTarget(GuidedPhotons):
     level_names = ("visibility", "inverse-area", "spatial")
     OPTIONS = {**GuidedPhotons.OPTIONS, "path_target": "max"}
     # this pass's MPs and per-MP targets, set by _prepare_targets, and their hit counts
-    TRANSIENT = Sppm.TRANSIENT + ("_n_points", "inv_area", "importance", "hits", "rho", "target_sums",
+    TRANSIENT = Sppm.TRANSIENT + ("inv_area", "importance", "hits", "rho", "target_sums",
                                     "mp_hit_stats")
 
     def __init__(self, dscene, settings):
@@ -409,7 +410,6 @@ class SpatialTarget(GuidedPhotons):
         super().__init__(dscene, settings)
         lo, hi = dscene.scene.bounds
         self.clusters = HitDensityClusters(lo, hi, self.n_pixels)
-        self._n_points = 0
 
     def release(self):
         self.clusters.release()
@@ -420,8 +420,7 @@ class SpatialTarget(GuidedPhotons):
         self.clusters.reset()
 
     def _prepare_targets(self):
-        self._n_points = self.camera_paths * self.n_pixels
-        self._spatial_targets(self._n_points)
+        self._spatial_targets(self.camera_paths * self.n_pixels)
 
     def _after_pass(self, level_scale):
         # Only the first camera path's MPs (one per pixel) feed the statistics: a cell's
@@ -430,7 +429,7 @@ class SpatialTarget(GuidedPhotons):
         # estimate to stay unbiased), and a photon is then counted once per pixel whatever
         # K (clusters.py, min_samples). All K paths' MPs made the statistics cost a fifth of
         # a spatial-tf pass on the Cornell box at K = 21 (docs/performance.md).
-        self._hit_statistics(self._n_points, ti.Vector(list(level_scale / FIXED_ONE)))
+        self._hit_statistics(self.n_pixels, ti.Vector(list(level_scale / FIXED_ONE)))
 
     @ti.kernel
     def _spatial_targets(self, n: ti.i32):
@@ -484,16 +483,15 @@ class SpatialTarget(GuidedPhotons):
     @ti.kernel
     def _hit_statistics(self, n: ti.i32, level_scale: ti.types.vector(3, ti.f64)):
         """This pass's hits into the clusters (uniform-path equivalents: each level's
-        fixed-point hits times its scale) from the first camera path's MPs, and the hit
-        counts of all n MPs cleared for the next pass."""
+        fixed-point hits times its scale) from the first camera path's n MPs (visit counts
+        hits at those only), and their hit counts cleared for the next pass."""
         for j in range(n):
             hits = ti.f64(0.0)
             for level in ti.static(range(self.n_levels)):
                 hits += ti.cast(self.hits[level, j], ti.f64) * level_scale[level]
                 self.hits[level, j] = 0
-            if j < ti.static(self.n_pixels):
-                self.mp_hit_stats[j] = ti.Vector([hits, ti.cast(self.M[j], ti.f64)], ti.f64)
-        self.clusters.accumulate_points(self, ti.min(n, ti.static(self.n_pixels)))
+            self.mp_hit_stats[j] = ti.Vector([hits, ti.cast(self.M[j], ti.f64)], ti.f64)
+        self.clusters.accumulate_points(self, n)
         self.clusters.close_pass()
 
     @ti.func
