@@ -8,7 +8,9 @@ convergence.md (final figures and the equal-time ranking), plus each method's fi
 
 With several seeds (`--seeds 0,1,2,3`) every method renders once per seed: the table gives
 the mean and spread over seeds, and the per-pixel relative-error spread is estimated from
-the seeds with the single-render noise removed (`metrics.relmse_spread_over_seeds`).
+the seeds with the single-render noise removed (`metrics.relmse_spread_over_seeds`), and
+each method's RMSE is split into noise (what the seeds average away) and systematic error
+(what they share: a bias no longer run of the method removes; `metrics.noise_and_systematic_error`).
 
 The methods run one after the other, or with `--interleave` together in alternating rounds
 of a sixteenth of the budget each: on a shared machine whose speed drifts by 10-40 % within
@@ -195,11 +197,12 @@ def _mean_spread(values) -> str:
 
 
 def write_table(path: Path, by_method: dict, header: str, seeds_spread: dict | None = None,
-                reference_noise_mse: float = 0.0) -> str:
+                reference_noise_mse: float = 0.0, error_split: dict | None = None) -> str:
     """by_method: name -> one list of checkpoints per seed; seeds_spread: name -> the per-pixel
     relMSE spread over seeds (None with one seed); reference_noise_mse: the reference's own
     expected squared error (from its header), removed from the RMSE in quadrature in an extra
-    column, since an image equal to the truth would still show it."""
+    column, since an image equal to the truth would still show it; error_split: name -> (noise,
+    systematic) RMSE over seeds (metrics.noise_and_systematic_error; None with one seed)."""
     finals = {name: [pts[-1] for pts in runs if pts] for name, runs in by_method.items()}
     finals = {name: f for name, f in finals.items() if f}
     # Equal-time ranking: every run's error interpolated (log-log) at the shortest final time,
@@ -211,19 +214,23 @@ def write_table(path: Path, by_method: dict, header: str, seeds_spread: dict | N
     lines = [header, ""]
     if n_seeds > 1:
         lines += [f"Mean +- standard deviation over {n_seeds} seeds. \"per-pixel relMSE CV, seeds\": the spread over "
-                  "pixels of each pixel's expected relMSE, single-render noise removed.", ""]
-    cv_head = " per-pixel relMSE CV, seeds |" if n_seeds > 1 else ""
+                  "pixels of each pixel's expected relMSE, single-render noise removed. \"RMSE: noise, "
+                  "systematic\": one render's RMSE split into what the seeds average away and what they "
+                  "share (their mean image's error, its noise and the reference's removed).", ""]
+    cv_head = " per-pixel relMSE CV, seeds | RMSE: noise, systematic |" if n_seeds > 1 else ""
     noise_head = " RMSE, reference noise removed |" if reference_noise_mse > 0 else ""
     lines += ["| method | time [s] | iterations | RMSE |" + noise_head + " relMSE | per-pixel relMSE CV, one render |"
               + cv_head + " mean-luminance bias | RMSE slope vs time |",
-              "|---|---|---|---|" + ("---|" if noise_head else "") + "---|---|" + ("---|" if n_seeds > 1 else "")
+              "|---|---|---|---|" + ("---|" if noise_head else "") + "---|---|" + ("---|---|" if n_seeds > 1 else "")
               + "---|---|"]
     for name, f in finals.items():
         slopes = [s for s in (slope(pts) for pts in by_method[name]) if s is not None]
         cv = ""
         if n_seeds > 1:
             c = (seeds_spread or {}).get(name)
-            cv = f" {'n/a' if c is None else f'{c:.2f}'} |"
+            split = (error_split or {}).get(name)
+            cv = (f" {'n/a' if c is None else f'{c:.2f}'} |"
+                  f" {'n/a' if split is None else f'{split[0]:.4g}, {split[1]:.4g}'} |")
         denoised = ""
         if reference_noise_mse > 0:
             denoised = f" {_mean_spread([math.sqrt(max(0.0, p.rmse ** 2 - reference_noise_mse)) for p in f])} |"
@@ -272,7 +279,7 @@ def converge(scene, scene_label: str, methods: list[str], reference_path, budget
                 log(f"converge: {name}, seed {seed} ...")
                 results[name][seed] = measure(scene, name, reference, budget, seed=seed, options=opts[name],
                                               max_depth=max_depth)
-    by_method, spread, all_points = {}, {}, []
+    by_method, spread, split, all_points = {}, {}, {}, []
     for name in methods:
         runs, images = [], []
         for seed in seeds:
@@ -287,6 +294,7 @@ def converge(scene, scene_label: str, methods: list[str], reference_path, budget
             (out_dir / f"{name}{suffix}.json").write_text(json.dumps(stats, indent=1, default=str))
         by_method[name] = runs
         spread[name] = metrics.relmse_spread_over_seeds(images, reference, eps)
+        split[name] = metrics.noise_and_systematic_error(images, reference, reference_noise)
     write_csv(out_dir / "convergence.csv", all_points)
     write_plot(out_dir / "convergence.png", by_method, f"{scene_label} vs {Path(reference_path).name}", eps)
     budget_text = f"{budget.time:g} s" if budget.time is not None else f"{budget.iterations} iterations"
@@ -296,5 +304,5 @@ def converge(scene, scene_label: str, methods: list[str], reference_path, budget
                        + ("; interleaved" if interleave else "") + "; "
                        f"relMSE eps = ({metrics.RELMSE_FLOOR:g} x reference mean luminance)^2 = {eps:.3g}"
                        + (f"; the reference's own RMSE {math.sqrt(reference_noise):.3g}" if reference_noise > 0 else "")
-                       + ")", spread, reference_noise)
+                       + ")", spread, reference_noise, split)
     return by_method, text

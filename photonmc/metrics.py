@@ -77,6 +77,26 @@ def relmse_spread_over_seeds(images, ref: np.ndarray, eps: float) -> float | Non
     return float(np.sqrt(max(0.0, m.var() - noise)) / mean)
 
 
+def noise_and_systematic_error(images, ref: np.ndarray, reference_noise_mse: float = 0.0):
+    """(noise, systematic): one render's RMSE split into what independent seeds average away
+    and what they share, from renders with independent seeds (None for fewer than 2).
+
+    noise^2 = the per-pixel variance over seeds (ddof 1), averaged over pixels and channels:
+    a single render's expected squared error from its randomness. systematic^2 = the squared
+    error of the seeds' mean image, less what its own noise (noise^2 / K) and the reference's
+    (reference_noise_mse, from its header) add, clamped at 0: the error more samples of this
+    method at these settings would not remove (photon mapping's radius bias, a start-up
+    bias, a modelling difference from the reference). With `rmse` both are over all channels,
+    so noise^2 + systematic^2 + reference_noise_mse ~ RMSE^2 (docs/convergence.md)."""
+    if len(images) < 2:
+        return None
+    x = np.stack([np.asarray(img, np.float64) for img in images])
+    k = x.shape[0]
+    noise_sq = float(x.var(axis=0, ddof=1).mean())
+    mean_sq = float(np.mean((x.mean(axis=0) - np.asarray(ref, np.float64)) ** 2))
+    return float(np.sqrt(noise_sq)), float(np.sqrt(max(0.0, mean_sq - noise_sq / k - reference_noise_mse)))
+
+
 def mean_luminance_bias(img: np.ndarray, ref: np.ndarray) -> float:
     """Relative difference of mean luminance (img - ref) / ref."""
     r = mean_luminance(ref)

@@ -4,6 +4,7 @@ import csv
 import numpy as np
 import pytest
 
+from photonmc import metrics
 from photonmc.cli import main
 from photonmc.imageio import read_image, write_image
 from photonmc.loop import Budget, prepare, run
@@ -92,6 +93,11 @@ def test_converge_over_seeds_reports_means_and_the_spread(tmp_path):
     assert f"| {np.mean(rmses):.4g} +- " in table
     denoised = np.mean([np.sqrt(e * e - noise_mse) for e in rmses])
     assert "RMSE, reference noise removed" in table and f"| {denoised:.4g} +- " in table
+    # the split into noise and systematic error is the seeds' images' (pt at 4 of the
+    # reference's 256 iterations: nearly all of its error is noise)
+    noise, systematic = metrics.noise_and_systematic_error(images, read_image(tmp_path / "ref.exr"), noise_mse)
+    assert f"| {noise:.4g}, {systematic:.4g} |" in table
+    assert systematic < 0.2 * noise
 
 
 def test_converge_refuses_repeated_seeds(tmp_path, capsys):

@@ -41,3 +41,24 @@ def test_the_spread_over_seeds_removes_the_single_render_noise_floor():
     cv = metrics.relmse_spread_over_seeds(_renders(rng, ref, uneven, 8), ref, eps)
     assert cv == pytest.approx(0.6, abs=0.08)
     assert metrics.relmse_spread_over_seeds(renders[:1], ref, eps) is None
+
+
+def test_the_error_split_over_seeds_recovers_known_noise_and_bias():
+    """Renders = reference + a fixed bias image + independent noise: the split returns the
+    noise's and the bias's RMSE, and the reference's own noise is taken out of the bias."""
+    rng = np.random.default_rng(3)
+    ref = _reference(rng, (64, 64))
+    bias = 0.01 * rng.standard_normal(ref.shape)          # RMSE 0.01, shared by every seed
+    renders = [ref + bias + 0.03 * rng.standard_normal(ref.shape) for _ in range(6)]
+    noise, systematic = metrics.noise_and_systematic_error(renders, ref)
+    assert noise == pytest.approx(0.03, rel=0.03)
+    assert systematic == pytest.approx(0.01, rel=0.1)
+    # a reference whose own noise is known: the same renders against a noisy reference
+    noisy_ref = ref + 0.02 * rng.standard_normal(ref.shape)
+    _, systematic = metrics.noise_and_systematic_error(renders, noisy_ref, reference_noise_mse=0.02 ** 2)
+    assert systematic == pytest.approx(0.01, rel=0.25)
+    # unbiased renders: no systematic error left, and one render has no split
+    _, systematic = metrics.noise_and_systematic_error([ref + 0.03 * rng.standard_normal(ref.shape)
+                                                        for _ in range(6)], ref)
+    assert systematic < 0.003
+    assert metrics.noise_and_systematic_error(renders[:1], ref) is None
