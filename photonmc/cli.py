@@ -135,6 +135,9 @@ def _add_guiding_options(parser):
                         "block (light, bounce 1, bounce 2, the rest) at a time, each with its own width")
     g.add_argument("--path-target", choices=["max", "sum"],
                    help="spatial-tf: a path's target is the max (default) or sum of the importance of the points it hits")
+    g.add_argument("--spatial-levels", type=int, choices=[2, 3],
+                   help="spatial-tf: 3 (default) ladders visibility -> inverse area -> spatial importance; "
+                        "2 leaves out the inverse-area level")
 
 
 def _add_vcm_options(parser):
@@ -172,6 +175,7 @@ def _method_options(args) -> dict:
     return {"photons": args.photons, "camera_paths": args.camera_paths, "alpha": args.alpha, "radius": args.radius, "chains": args.chains,
             "target_acceptance": args.target_acceptance, "proposal_failures": args.proposal_failures,
             "expected_values": args.expected_values, "path_target": args.path_target,
+            "spatial_levels": args.spatial_levels,
             "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis,
             "large_step": args.large_step, "suffix_mutation": args.suffix_mutation,
             "mutation": args.mutation, "warm_start": args.warm_start,

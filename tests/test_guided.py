@@ -27,10 +27,11 @@ def render(scene, method, iterations, seed=0, max_depth=None, **options):
                                             ("spatial-tf", {}), ("spatial-tf", {"expected_values": True}),
                                             ("spatial-tf", {"warm_start": True, "ladder_burn_in": 0.25}),
                                             ("visibility", {"uniform_weight": 1.0}),
-                                            ("spatial-tf", {"uniform_weight": 1.0})],
+                                            ("spatial-tf", {"uniform_weight": 1.0}),
+                                            ("spatial-tf", {"spatial_levels": 2})],
                          ids=["visibility", "visibility-suffix-moves", "visibility-block-moves", "spatial-tf",
                               "spatial-tf-expected-values", "spatial-tf-warm-start", "visibility-uniform-photons",
-                              "spatial-tf-uniform-photons"])
+                              "spatial-tf-uniform-photons", "spatial-tf-two-levels"])
 def test_sphere_furnace(write_scene, method, options):
     """Inside an emitting diffuse sphere the answer is analytic and SPPM's density estimate has
     no blur bias: the Markov-chain estimators must hit it within noise. (Most photon paths are
@@ -153,6 +154,8 @@ def test_bad_options(options, message):
             prepare(scene, method=method, options=options)
     with pytest.raises(SettingsError, match="--path-target"):
         prepare(scene, method="spatial-tf", options={"path_target": "mean"})
+    with pytest.raises(SettingsError, match="--spatial-levels"):
+        prepare(scene, method="spatial-tf", options={"spatial_levels": 4})
     with pytest.raises(SettingsError, match="does not take --chains"):
         prepare(scene, method="sppm", options={"chains": 4})
     with pytest.raises(SettingsError, match="does not take --path-target"):
@@ -175,6 +178,13 @@ def test_statistics_reported(write_scene, method):
     assert 0.05 <= s["mutation_probability"] <= 1.0
     if n_levels > 1:
         assert set(s["swap_acceptance"]) == {"visibility<->inverse-area", "inverse-area<->spatial"}
+
+
+def test_two_spatial_levels_report_one_exchange(write_scene):
+    s = render(_open_box(write_scene, res=8), "spatial-tf", 3, spatial_levels=2).stats
+    assert [level["target"] for level in s["levels"]] == ["visibility", "spatial"]
+    assert set(s["swap_acceptance"]) == {"visibility<->spatial"}
+    assert all(level["mutations"] > 0 for level in s["levels"])
 
 
 @pytest.mark.convergence

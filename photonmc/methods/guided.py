@@ -162,6 +162,7 @@ class GuidedPhotons(Sppm):
             self.rho = f.scalar(ti.f64, n)                # each MP's cluster density this pass
             self.mp_hit_stats = f.vector(2, ti.f64, self.n_pixels)   # hits and samples of the first path's MPs
             self.target_sums = f.vector(5, ti.f64, ())    # _spatial_targets' maxima and sums
+            self.hit_scale = f.scalar(ti.f64, L)          # each level's hits -> uniform-path equivalents
         f.finalize()
         self.guide_fields = f
         self._reset_guided()
@@ -218,12 +219,15 @@ class GuidedPhotons(Sppm):
                     # m_l / T_l with the balance heuristic m_l = (T_l/b_l) / sum_k T_k/b_k
                     fw[level] = w[level] / (self.b_mis[level] * denom)
             if ti.static(self.n_levels > 1):
-                # Hit statistics for the spatial importance come from levels 0 and 1 only
-                # (MIS over those two): the spatial level must not feed back on itself.
-                d01 = t[0] / self.b_mis[0] + t[1] / self.b_mis[1]
-                for level in ti.static(range(2)):
+                # Hit statistics for the spatial importance come from the levels below the
+                # spatial one only (MIS over those): the spatial level must not feed back on
+                # itself.
+                d = 0.0
+                for level in ti.static(range(self.n_levels - 1)):
+                    d += t[level] / self.b_mis[level]
+                for level in ti.static(range(self.n_levels - 1)):
                     if w[level] > 0.0 and t[level] > 0.0:
-                        hw[level] = w[level] / (self.b_mis[level] * d01)
+                        hw[level] = w[level] / (self.b_mis[level] * d)
         self.flux_weight[vkey] = fw
         self.hit_weight[vkey] = hw
 
@@ -244,11 +248,13 @@ class GuidedPhotons(Sppm):
                     if ti.static(self.n_levels == 1):
                         break
                     if ti.static(self.n_levels > 1):
-                        t[1] = ti.max(t[1], self.inv_area[j])
+                        if ti.static(self.n_levels == 3):
+                            t[1] = ti.max(t[1], self.inv_area[j])
+                        top = ti.static(self.n_levels - 1)        # the spatial level
                         if ti.static(self.path_target_sum):
-                            t[2] += self.importance[j]
+                            t[top] += self.importance[j]
                         else:
-                            t[2] = ti.max(t[2], self.importance[j])
+                            t[top] = ti.max(t[top], self.importance[j])
                 elif self.deposit_at(j, wi, beta, fw, vkey & 1):
                     hit = 1
                     if ti.static(self.n_levels > 1):
@@ -397,16 +403,24 @@ class SpatialTarget(GuidedPhotons):
     name = "spatial-tf"
     n_levels = 3
     level_names = ("visibility", "inverse-area", "spatial")
-    OPTIONS = {**GuidedPhotons.OPTIONS, "path_target": "max"}
+    OPTIONS = {**GuidedPhotons.OPTIONS, "path_target": "max", "spatial_levels": 3}
     # this pass's MPs and per-MP targets, set by _prepare_targets, and their hit counts
     TRANSIENT = Sppm.TRANSIENT + ("inv_area", "importance", "hits", "rho", "target_sums",
-                                    "mp_hit_stats")
+                                    "mp_hit_stats", "hit_scale")
 
     def __init__(self, dscene, settings):
         path_target = {**self.OPTIONS, **{k: v for k, v in settings.options.items() if v is not None}}["path_target"]
         if path_target not in ("max", "sum"):
             raise SettingsError(f"--path-target must be 'max' or 'sum', got '{path_target}'")
         self.path_target_sum = path_target == "sum"
+        # --spatial-levels 2 leaves out the inverse-area level: visibility -> spatial
+        # importance (docs/guiding.md, "Two levels instead of three").
+        levels = {**self.OPTIONS, **{k: v for k, v in settings.options.items() if v is not None}}["spatial_levels"]
+        if str(levels) not in ("2", "3"):
+            raise SettingsError(f"--spatial-levels must be 2 or 3, got '{levels}'")
+        if int(levels) == 2:
+            self.n_levels = 2
+            self.level_names = ("visibility", "spatial")
         super().__init__(dscene, settings)
         lo, hi = dscene.scene.bounds
         self.clusters = HitDensityClusters(lo, hi, self.n_pixels)
@@ -429,7 +443,8 @@ class SpatialTarget(GuidedPhotons):
         # estimate to stay unbiased), and a photon is then counted once per pixel whatever
         # K (clusters.py, min_samples). All K paths' MPs made the statistics cost a fifth of
         # a spatial-tf pass on the Cornell box at K = 21 (docs/performance.md).
-        self._hit_statistics(self.n_pixels, ti.Vector(list(level_scale / FIXED_ONE)))
+        upload_fields([(self.hit_scale, np.asarray(level_scale, np.float64) / FIXED_ONE)])
+        self._hit_statistics(self.n_pixels)
 
     @ti.kernel
     def _spatial_targets(self, n: ti.i32):
@@ -481,14 +496,14 @@ class SpatialTarget(GuidedPhotons):
         return ia, imp
 
     @ti.kernel
-    def _hit_statistics(self, n: ti.i32, level_scale: ti.types.vector(3, ti.f64)):
+    def _hit_statistics(self, n: ti.i32):
         """This pass's hits into the clusters (uniform-path equivalents: each level's
         fixed-point hits times its scale) from the first camera path's n MPs (visit counts
         hits at those only), and their hit counts cleared for the next pass."""
         for j in range(n):
             hits = ti.f64(0.0)
             for level in ti.static(range(self.n_levels)):
-                hits += ti.cast(self.hits[level, j], ti.f64) * level_scale[level]
+                hits += ti.cast(self.hits[level, j], ti.f64) * self.hit_scale[level]
                 self.hits[level, j] = 0
             self.mp_hit_stats[j] = ti.Vector([hits, ti.cast(self.M[j], ti.f64)], ti.f64)
         self.clusters.accumulate_points(self, n)
@@ -503,4 +518,4 @@ class SpatialTarget(GuidedPhotons):
 
     def progress_fields(self) -> str:
         swaps = self.totals[:, SWAPS_ACCEPTED] / np.maximum(self.totals[:, SWAPS_TRIED], 1)
-        return super().progress_fields() + f"  swap {swaps[0]:.2f}/{swaps[1]:.2f}"
+        return super().progress_fields() + "  swap " + "/".join(f"{x:.2f}" for x in swaps[:-1])
