@@ -409,13 +409,14 @@ class SpatialTarget(GuidedPhotons):
                                     "mp_hit_stats", "hit_scale")
 
     def __init__(self, dscene, settings):
-        path_target = {**self.OPTIONS, **{k: v for k, v in settings.options.items() if v is not None}}["path_target"]
+        opts = {**self.OPTIONS, **{k: v for k, v in settings.options.items() if v is not None}}
+        path_target = opts["path_target"]
         if path_target not in ("max", "sum"):
             raise SettingsError(f"--path-target must be 'max' or 'sum', got '{path_target}'")
         self.path_target_sum = path_target == "sum"
         # --spatial-levels 2 leaves out the inverse-area level: visibility -> spatial
         # importance (docs/guiding.md, "Two levels instead of three").
-        levels = {**self.OPTIONS, **{k: v for k, v in settings.options.items() if v is not None}}["spatial_levels"]
+        levels = opts["spatial_levels"]
         if str(levels) not in ("2", "3"):
             raise SettingsError(f"--spatial-levels must be 2 or 3, got '{levels}'")
         if int(levels) == 2:
