@@ -10,7 +10,8 @@ With several seeds (`--seeds 0,1,2,3`) every method renders once per seed: the t
 the mean and spread over seeds, and the per-pixel relative-error spread is estimated from
 the seeds with the single-render noise removed (`metrics.relmse_spread_over_seeds`), and
 each method's RMSE is split into noise (what the seeds average away) and systematic error
-(what they share: a bias no longer run of the method removes; `metrics.noise_and_systematic_error`).
+(what they share at this budget, e.g. photon mapping's radius bias;
+`metrics.noise_and_systematic_error`).
 
 The methods run one after the other, or with `--interleave` together in alternating rounds
 of a sixteenth of the budget each: on a shared machine whose speed drifts by 10-40 % within

@@ -84,9 +84,9 @@ def noise_and_systematic_error(images, ref: np.ndarray, reference_noise_mse: flo
     noise^2 = the per-pixel variance over seeds (ddof 1), averaged over pixels and channels:
     a single render's expected squared error from its randomness. systematic^2 = the squared
     error of the seeds' mean image, less what its own noise (noise^2 / K) and the reference's
-    (reference_noise_mse, from its header) add, clamped at 0: the error more samples of this
-    method at these settings would not remove (photon mapping's radius bias, a start-up
-    bias, a modelling difference from the reference). With `rmse` both are over all channels,
+    (reference_noise_mse, from its header) add, clamped at 0: the error that averaging more renders
+    of this budget would not remove (photon mapping's radius bias at the radii reached, a
+    start-up bias, a modelling difference from the reference). With `rmse` both are over all channels,
     so noise^2 + systematic^2 + reference_noise_mse ~ RMSE^2 (docs/convergence.md)."""
     if len(images) < 2:
         return None
