@@ -75,6 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--camera-paths", type=_camera_paths, help="camera paths per pixel per pass, or auto")
     c.add_argument("--alpha", type=float)
     c.add_argument("--radius", type=float)
+    c.add_argument("--radius-rule", choices=["progressive", "balanced"])
     _add_guiding_options(c)
     _add_vcm_options(c)
     c.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE")
@@ -105,6 +106,10 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
     pm.add_argument("--alpha", type=float, help="fraction of new photons kept by the radius update (default 2/3)")
     pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
                                                  "(default: 2 pixel footprints at each pixel's first hit)")
+    pm.add_argument("--radius-rule", choices=["progressive", "balanced"],
+                    help="progressive (default): every pixel's radius shrinks by alpha's rule; balanced: a "
+                         "pixel whose radius bias, measured against a disc of half the area, outweighs its "
+                         "noise shrinks faster (docs/guiding.md)")
     _add_guiding_options(r)
     _add_vcm_options(r)
     d = r.add_argument_group("several processes or machines (needs photonmc[distributed], i.e. Ray)")
@@ -172,7 +177,8 @@ def _add_vcm_options(parser):
 
 
 def _method_options(args) -> dict:
-    return {"photons": args.photons, "camera_paths": args.camera_paths, "alpha": args.alpha, "radius": args.radius, "chains": args.chains,
+    return {"photons": args.photons, "camera_paths": args.camera_paths, "alpha": args.alpha, "radius": args.radius,
+            "radius_rule": args.radius_rule, "chains": args.chains,
             "target_acceptance": args.target_acceptance, "proposal_failures": args.proposal_failures,
             "expected_values": args.expected_values, "path_target": args.path_target,
             "spatial_levels": args.spatial_levels,

@@ -37,7 +37,11 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "slatted-window": ("../tools/heldout/slatted-window.xml", "../../tools/heldout/slatted-window-64.exr",
                              {"res": "64"}),
           # Held out from mbe's burn-in change (2026-12-02).
-          "doorway": ("../tools/heldout/doorway.xml", "../../tools/heldout/doorway-64.exr", {"res": "64"})}
+          "doorway": ("../tools/heldout/doorway.xml", "../../tools/heldout/doorway-64.exr", {"res": "64"}),
+          # Held out from the guided photons' work (stops 29 and 31).
+          "cellar-hatch": ("../tools/heldout/cellar-hatch.xml", "../../tools/heldout/cellar-hatch-64.exr",
+                           {"res": "64"}),
+          "lit-study": ("../tools/heldout/lit-study.xml", "../../tools/heldout/lit-study-64.exr", {"res": "64"})}
 
 
 def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):

@@ -255,7 +255,7 @@ class GuidedPhotons(Sppm):
                             t[top] += self.importance[j]
                         else:
                             t[top] = ti.max(t[top], self.importance[j])
-                elif self.deposit_at(j, wi, beta, fw, vkey & 1):
+                elif self.deposit_at(j, wi, beta, fw, vkey & 1, self.in_inner_disc(j, x)):
                     hit = 1
                     if ti.static(self.n_levels > 1):
                         if j < ti.static(self.n_pixels):     # the statistics read the first camera path's MPs only

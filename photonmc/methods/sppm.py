@@ -47,6 +47,7 @@ FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flu
 PI = math.pi                      # use as ti.f64(PI): a bare literal is a float32 constant (default_fp)
 MP_BUDGET = 1 << 20               # measurement points that --camera-paths auto may allocate
 MAX_CAMERA_PATHS = 64             # and at most this many camera paths per pixel per pass
+ALPHA_FAST = 0.5                  # --radius-rule balanced: alpha's factor where the bias dominates
 # One camera path's accumulators: direct light so far, its pixel, the initial-radius rule.
 CameraPath = ti.types.struct(direct=vec3, pixel=ti.i32, r_abs=ti.f32, r_per_dist=ti.f32, rays=ti.i32)
 
@@ -66,12 +67,13 @@ class Sppm(Method):
     work_unit = "photons"
     default_iterations = 100
     OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False,
-               "camera_paths": None}
+               "camera_paths": None, "radius_rule": "progressive"}
+    RADIUS_RULES = ("progressive", "balanced")
     default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
     # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the
     # pass's measurement points with their per-pass accumulators (up to MP_BUDGET points).
     TRANSIENT = ("grid", "mp_p", "mp_n", "mp_wo", "mp_W", "mp_bsdf", "mp_depth", "mp_valid", "mp_radius",
-                 "mp_direct", "M", "phi", "phi_odd")
+                 "mp_direct", "M", "phi", "phi_odd", "phi_inner")
     n_levels = 1          # flux accumulators per measurement point (one per Markov-chain level)
     # The guided methods add one accumulator after the levels': the uniform photons' own
     # estimate (methods/guided.py), whose halves the update keeps apart from the levels'.
@@ -105,6 +107,12 @@ class Sppm(Method):
         self.initial_radius = float(opts["radius"] or 0.0)
         self.radius_pixels = float(opts["radius_pixels"])
         self.tau_form = bool(opts["tau_form"])
+        if opts["radius_rule"] not in self.RADIUS_RULES:
+            raise SettingsError(f"--radius-rule must be one of {', '.join(self.RADIUS_RULES)}, "
+                                f"got '{opts['radius_rule']}'")
+        # balanced: a pixel whose measured radius bias outweighs its noise shrinks faster
+        # (docs/guiding.md, "A radius that balances its bias against the noise")
+        self.balanced_radius = opts["radius_rule"] == "balanced"
         depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
         self.max_depth = UNBOUNDED_DEPTH if depth == -1 else depth
         self.max_photon_segments = min(self.max_depth - 1, MAX_PHOTON_SEGMENTS)
@@ -139,6 +147,16 @@ class Sppm(Method):
         self.M = f.scalar(ti.i64, self.n_mp)
         self.phi = f.vector(3, ti.i64, (self.n_acc, self.n_mp))
         self.phi_odd = f.vector(3, ti.i64, (self.n_acc, self.n_mp))   # the odd half's part of phi (effort.py)
+        if self.balanced_radius:
+            # the photons that landed in the inner disc of half the area, per accumulator
+            self.phi_inner = f.vector(3, ti.i64, (self.n_acc, self.n_mp))
+            # per pixel: sums over passes of the outer-minus-inner difference / R^2 and its
+            # square, the passes counted, and the sum of each pass's photon variance
+            self.bias_sum = f.scalar(ti.f64, n)
+            self.bias_sq = f.scalar(ti.f64, n)
+            self.bias_passes = f.scalar(ti.f64, n)
+            self.noise_sum = f.scalar(ti.f64, n)
+            self.fast_passes = f.scalar(ti.i64, ())     # pixel-passes that shrank at ALPHA_FAST x alpha
         self.estimate_last = f.scalar(ti.f64, n)    # per pixel: the last iteration's own estimate
         self.spread = f.scalar(ti.f64, n)           # per pixel: (this estimate - the last one)^2
         self.half_difference = f.scalar(ti.f64, n)  # per pixel: n (t_a - t_b)^2 / 4
@@ -181,6 +199,9 @@ class Sppm(Method):
     def _reset(self):
         fill_fields((f, 0) for f in (self.R, self.N, self.D, self.tau, self.Ld, self.M, self.phi, self.phi_odd,
                                      self.counters, self.mp_valid))
+        if self.balanced_radius:
+            fill_fields((f, 0) for f in (self.phi_inner, self.bias_sum, self.bias_sq, self.bias_passes,
+                                         self.noise_sum, self.fast_passes))
         self.photons_emitted = 0
         if self.camera_paths_auto:
             self.camera_paths = 1
@@ -214,7 +235,7 @@ class Sppm(Method):
     def _update_balanced(self, n_p: int):
         """The progressive update, and the effort balance's view of this iteration."""
         k = self.camera_paths
-        self._update(self.alpha, n_p, k)
+        self._update(self.alpha, n_p, k, self.iterations + 1)
         if self.effort is None:
             return
         self._effort_sums()
@@ -326,14 +347,25 @@ class Sppm(Method):
         for e in range(first, end):
             j = self.grid.entries[e]
             if self.accepts(j, x, n, wi, segments):
-                used |= self.deposit_at(j, wi, beta, ti.Vector([1.0]), vkey & 1)
+                used |= self.deposit_at(j, wi, beta, ti.Vector([1.0]), vkey & 1, self.in_inner_disc(j, x))
         return used
 
     @ti.func
-    def deposit_at(self, j, wi, beta, weights, odd: ti.i32) -> ti.i32:
+    def in_inner_disc(self, j: ti.i32, x) -> ti.i32:
+        """Whether x lies in MP j's disc of half the area (the balanced radius rule's bias probe)."""
+        inner = 0
+        if ti.static(self.balanced_radius):
+            r = self.mp_radius[j]
+            if (x - self.mp_p[j]).norm_sqr() <= 0.5 * r * r:
+                inner = 1
+        return inner
+
+    @ti.func
+    def deposit_at(self, j, wi, beta, weights, odd: ti.i32, inner: ti.i32) -> ti.i32:
         """Add photon power beta arriving from wi to MP j, weight[l] of it to level l's
         accumulator, and count the photon. `odd`: the photon belongs to the odd half of the
-        pass (effort.py). Returns 0 for a non-finite contribution (dropped)."""
+        pass (effort.py); `inner`: it lies in the disc of half the area (in_inner_disc).
+        Returns 0 for a non-finite contribution (dropped)."""
         nj = self.mp_n[j]
         t1, t2 = onb(nj)
         f = self.dscene.bsdf_evaluate(self.mp_bsdf[j], to_local(self.mp_wo[j], t1, t2, nj), to_local(wi, t1, t2, nj)).f
@@ -348,11 +380,14 @@ class Sppm(Method):
                         ti.atomic_add(self.phi[level, j][c], fixed[c])
                         if odd:
                             ti.atomic_add(self.phi_odd[level, j][c], fixed[c])
+                        if ti.static(self.balanced_radius):
+                            if inner:
+                                ti.atomic_add(self.phi_inner[level, j][c], fixed[c])
             ok = 1
         return ok
 
     @ti.kernel
-    def _update(self, alpha: ti.f64, n_p: ti.f64, camera_paths: ti.i32):
+    def _update(self, alpha: ti.f64, n_p: ti.f64, camera_paths: ti.i32, passes: ti.f64):
         lum = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
         n = self.n_pixels
         k = ti.cast(camera_paths, ti.f64)
@@ -364,6 +399,7 @@ class Sppm(Method):
             valid = 0
             w_phi = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             w_phi_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            w_phi_inner = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             # chains' and uniform photons' estimates apart, each at its own scale: even, odd
             w_sep = ti.Matrix([[0.0] * 3] * 4, ti.f64)
             for s in range(camera_paths):
@@ -380,6 +416,12 @@ class Sppm(Method):
                     w = ti.cast(self.mp_W[j], ti.f64)
                     w_phi += w * phi
                     w_phi_odd += w * phi_odd
+                    if ti.static(self.balanced_radius):
+                        phi_inner = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+                        for level in ti.static(range(self.n_acc)):
+                            phi_inner += ti.cast(self.phi_inner[level, j], ti.f64) * self.level_scale[level]
+                            self.phi_inner[level, j] = ti.Vector([0, 0, 0], ti.i64)
+                        w_phi_inner += w * phi_inner
                     if ti.static(self.uniform_accumulator):
                         for level in ti.static(range(self.n_acc)):
                             row = 2 if level == self.n_levels else 0
@@ -401,12 +443,16 @@ class Sppm(Method):
             inc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             inc_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             chains, uniform = ti.f64(0.0), ti.f64(0.0)
+            alpha_pixel = alpha
             if valid > 0:
                 m /= ti.cast(valid, ti.f64)     # photons per MP: the radius follows photon density, not K
+            if ti.static(self.balanced_radius):
+                if valid > 0 and self.R[i] > 0.0:
+                    alpha_pixel = self._balanced_alpha(i, alpha, lum, w_phi, w_phi_odd, w_phi_inner, k, n_p, passes)
             if m > 0.0:
                 r = self.R[i]
                 n_old = self.N[i]
-                n_new = n_old + alpha * m
+                n_new = n_old + alpha_pixel * m
                 r_new = r * ti.sqrt(n_new / (n_old + m))
                 w_phi /= k
                 inc = w_phi / (ti.f64(PI) * r * r)
@@ -431,6 +477,42 @@ class Sppm(Method):
             if ti.static(self.uniform_accumulator):
                 self.half_chains[i] = chains
                 self.half_uniform[i] = uniform
+
+    @ti.func
+    def _balanced_alpha(self, i, alpha, lum, w_phi, w_phi_odd, w_phi_inner, k, n_p, passes):
+        """The balanced radius rule: this pass's alpha for pixel i.
+
+        The photons within the disc of half the area give a second estimate whose radius
+        bias is smaller: where bias ~ c R^2 (a smooth neighbourhood), outer - inner = c R^2 / 2
+        (near an edge that cuts the disc, bias ~ R, and the difference understates it). The
+        pixel keeps the mean and spread over passes of (outer - inner) / R^2, an estimate of
+        c, and the sum of each pass's photon variance (from its even and odd halves,
+        docs/effort.md), which over passes^2 is the variance of the image's mean. Where the
+        bias that c shows beyond three standard errors is larger than that variance allows
+        (bias^2 > variance / 2, the MSE-optimal balance of a bias linear in R^2 against a
+        variance linear in 1 / R^2), the radius shrinks at ALPHA_FAST x alpha this pass.
+        Any alpha between the two keeps SPPM's consistency (the radius still goes to 0 and
+        the photon count to infinity)."""
+        r2 = self.R[i] * self.R[i]
+        area = k * n_p * ti.f64(PI) * r2
+        outer = lum.dot(w_phi) / area
+        inner = 2.0 * lum.dot(w_phi_inner) / area
+        c = (outer - inner) / r2
+        odd = lum.dot(w_phi_odd) / area
+        halves = 2.0 * (outer - odd) - 2.0 * odd
+        self.bias_sum[i] += c
+        self.bias_sq[i] += c * c
+        self.bias_passes[i] += 1.0
+        self.noise_sum[i] += halves * halves / 4.0
+        n = self.bias_passes[i]
+        mean = self.bias_sum[i] / n
+        standard_error = ti.sqrt(ti.max(self.bias_sq[i] / n - mean * mean, 0.0) / n)
+        bias = 2.0 * ti.max(ti.abs(mean) - 3.0 * standard_error, 0.0) * r2
+        a = alpha
+        if bias * bias > 0.5 * self.noise_sum[i] / (passes * passes):
+            a = alpha * ALPHA_FAST
+            ti.atomic_add(self.fast_passes[None], 1)
+        return a
 
     @ti.kernel
     def _effort_sums(self):
@@ -489,5 +571,7 @@ class Sppm(Method):
                 "fraction_of_photon_paths_depositing": float(c[0]) / max(self.photons_emitted, 1),
                 "mean_radius": float(r[seen].mean()) if seen.any() else None,
                 "alpha": self.alpha, "nonfinite_samples_dropped": int(c[1]),
+                "radius_rule": self.options["radius_rule"],
+                **({"pixel_passes_shrunk_fast": int(self.fast_passes[None])} if self.balanced_radius else {}),
                 "effort": {"balanced": self.balanced and self.effort is not None,
                            **(self.effort.stats() if self.effort is not None else {})}}
