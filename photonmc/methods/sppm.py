@@ -47,7 +47,8 @@ FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flu
 PI = math.pi                      # use as ti.f64(PI): a bare literal is a float32 constant (default_fp)
 MP_BUDGET = 1 << 20               # measurement points that --camera-paths auto may allocate
 MAX_CAMERA_PATHS = 64             # and at most this many camera paths per pixel per pass
-ALPHA_FAST = 0.5                  # --radius-rule balanced: alpha's factor where the bias dominates
+ALPHA_FAST = 0.5                  # --radius-rule balanced: alpha's factor while the bias dominates
+BIAS_MIN_PASSES = 16              # and the passes a pixel's bias is measured over before it counts
 # One camera path's accumulators: direct light so far, its pixel, the initial-radius rule.
 CameraPath = ti.types.struct(direct=vec3, pixel=ti.i32, r_abs=ti.f32, r_per_dist=ti.f32, rays=ti.i32)
 
@@ -113,6 +114,8 @@ class Sppm(Method):
         # balanced: a pixel whose measured radius bias outweighs its noise shrinks faster
         # (docs/guiding.md, "A radius that balances its bias against the noise")
         self.balanced_radius = opts["radius_rule"] == "balanced"
+        self.alpha_factor = 1.0       # its factor on alpha for this pass
+        self.fast_passes = 0          # and the passes it shrank faster
         depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
         self.max_depth = UNBOUNDED_DEPTH if depth == -1 else depth
         self.max_photon_segments = min(self.max_depth - 1, MAX_PHOTON_SEGMENTS)
@@ -150,13 +153,11 @@ class Sppm(Method):
         if self.balanced_radius:
             # the photons that landed in the inner disc of half the area, per accumulator
             self.phi_inner = f.vector(3, ti.i64, (self.n_acc, self.n_mp))
-            # per pixel: sums over passes of the outer-minus-inner difference / R^2 and its
-            # square, the passes counted, and the sum of each pass's photon variance
+            # per pixel: sums over passes of the outer-minus-inner difference and its
+            # square, and the passes counted
             self.bias_sum = f.scalar(ti.f64, n)
             self.bias_sq = f.scalar(ti.f64, n)
             self.bias_passes = f.scalar(ti.f64, n)
-            self.noise_sum = f.scalar(ti.f64, n)
-            self.fast_passes = f.scalar(ti.i64, ())     # pixel-passes that shrank at ALPHA_FAST x alpha
         self.estimate_last = f.scalar(ti.f64, n)    # per pixel: the last iteration's own estimate
         self.spread = f.scalar(ti.f64, n)           # per pixel: (this estimate - the last one)^2
         self.half_difference = f.scalar(ti.f64, n)  # per pixel: n (t_a - t_b)^2 / 4
@@ -200,8 +201,9 @@ class Sppm(Method):
         fill_fields((f, 0) for f in (self.R, self.N, self.D, self.tau, self.Ld, self.M, self.phi, self.phi_odd,
                                      self.counters, self.mp_valid))
         if self.balanced_radius:
-            fill_fields((f, 0) for f in (self.phi_inner, self.bias_sum, self.bias_sq, self.bias_passes,
-                                         self.noise_sum, self.fast_passes))
+            fill_fields((f, 0) for f in (self.phi_inner, self.bias_sum, self.bias_sq, self.bias_passes))
+        self.alpha_factor = 1.0       # balanced radius rule: this pass's factor on alpha
+        self.fast_passes = 0          # and the passes it shrank faster
         self.photons_emitted = 0
         if self.camera_paths_auto:
             self.camera_paths = 1
@@ -235,7 +237,10 @@ class Sppm(Method):
     def _update_balanced(self, n_p: int):
         """The progressive update, and the effort balance's view of this iteration."""
         k = self.camera_paths
-        self._update(self.alpha, n_p, k, self.iterations + 1)
+        self._update(self.alpha * self.alpha_factor, n_p, k)
+        if self.balanced_radius:
+            self.alpha_factor = self._balance_radius()
+            self.fast_passes += self.alpha_factor < 1.0
         if self.effort is None:
             return
         self._effort_sums()
@@ -387,7 +392,7 @@ class Sppm(Method):
         return ok
 
     @ti.kernel
-    def _update(self, alpha: ti.f64, n_p: ti.f64, camera_paths: ti.i32, passes: ti.f64):
+    def _update(self, alpha: ti.f64, n_p: ti.f64, camera_paths: ti.i32):
         lum = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
         n = self.n_pixels
         k = ti.cast(camera_paths, ti.f64)
@@ -443,16 +448,15 @@ class Sppm(Method):
             inc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             inc_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             chains, uniform = ti.f64(0.0), ti.f64(0.0)
-            alpha_pixel = alpha
             if valid > 0:
                 m /= ti.cast(valid, ti.f64)     # photons per MP: the radius follows photon density, not K
             if ti.static(self.balanced_radius):
                 if valid > 0 and self.R[i] > 0.0:
-                    alpha_pixel = self._balanced_alpha(i, alpha, lum, w_phi, w_phi_odd, w_phi_inner, k, n_p, passes)
+                    self._measure_bias(i, lum, w_phi, w_phi_inner, k, n_p)
             if m > 0.0:
                 r = self.R[i]
                 n_old = self.N[i]
-                n_new = n_old + alpha_pixel * m
+                n_new = n_old + alpha * m
                 r_new = r * ti.sqrt(n_new / (n_old + m))
                 w_phi /= k
                 inc = w_phi / (ti.f64(PI) * r * r)
@@ -479,40 +483,44 @@ class Sppm(Method):
                 self.half_uniform[i] = uniform
 
     @ti.func
-    def _balanced_alpha(self, i, alpha, lum, w_phi, w_phi_odd, w_phi_inner, k, n_p, passes):
-        """The balanced radius rule: this pass's alpha for pixel i.
-
-        The photons within the disc of half the area give a second estimate whose radius
-        bias is smaller: where bias ~ c R^2 (a smooth neighbourhood), outer - inner = c R^2 / 2
-        (near an edge that cuts the disc, bias ~ R, and the difference understates it). The
-        pixel keeps the mean and spread over passes of (outer - inner) / R^2, an estimate of
-        c, and the sum of each pass's photon variance (from its even and odd halves,
-        docs/effort.md), which over passes^2 is the variance of the image's mean. Where the
-        bias that c shows beyond three standard errors is larger than that variance allows
-        (bias^2 > variance / 2, the MSE-optimal balance of a bias linear in R^2 against a
-        variance linear in 1 / R^2), the radius shrinks at ALPHA_FAST x alpha this pass.
-        Any alpha between the two keeps SPPM's consistency (the radius still goes to 0 and
-        the photon count to infinity)."""
-        r2 = self.R[i] * self.R[i]
-        area = k * n_p * ti.f64(PI) * r2
-        outer = lum.dot(w_phi) / area
-        inner = 2.0 * lum.dot(w_phi_inner) / area
-        c = (outer - inner) / r2
-        odd = lum.dot(w_phi_odd) / area
-        halves = 2.0 * (outer - odd) - 2.0 * odd
-        self.bias_sum[i] += c
-        self.bias_sq[i] += c * c
+    def _measure_bias(self, i, lum, w_phi, w_phi_inner, k, n_p):
+        """The balanced radius rule's probe, per pixel and pass: the photons within the disc of
+        half the area give a second estimate whose radius bias is smaller. Where the bias
+        goes as R^2 (a smooth neighbourhood), outer - inner is half the outer disc's bias;
+        where an edge cuts the disc (bias ~ R), about 0.3 of it. Its variance is about that of
+        the pixel's photon estimate (the inner disc's photons are in both)."""
+        area = k * n_p * ti.f64(PI) * self.R[i] * self.R[i]
+        d = (lum.dot(w_phi) - 2.0 * lum.dot(w_phi_inner)) / area
+        self.bias_sum[i] += d
+        self.bias_sq[i] += d * d
         self.bias_passes[i] += 1.0
-        self.noise_sum[i] += halves * halves / 4.0
-        n = self.bias_passes[i]
-        mean = self.bias_sum[i] / n
-        standard_error = ti.sqrt(ti.max(self.bias_sq[i] / n - mean * mean, 0.0) / n)
-        bias = 2.0 * ti.max(ti.abs(mean) - 3.0 * standard_error, 0.0) * r2
-        a = alpha
-        if bias * bias > 0.5 * self.noise_sum[i] / (passes * passes):
-            a = alpha * ALPHA_FAST
-            ti.atomic_add(self.fast_passes[None], 1)
-        return a
+
+    @ti.kernel
+    def _balance_radius(self) -> ti.f64:
+        """The balanced radius rule's choice for the next pass: ALPHA_FAST (every pixel's
+        radius shrinks with ALPHA_FAST x alpha) or 1.
+
+        Over pixels, sum(mean difference^2 - its squared standard error) estimates the image's
+        squared bias / 4 (bias ~ 2 x the difference where it goes as R^2, more near edges),
+        and sum(squared standard error) its photon variance. The MSE-optimal radius for a bias
+        linear in R^2 against a variance linear in 1 / R^2 has bias^2 = variance / 2, so where
+        the bias is larger the radii shrink faster. Summing over the image, as the RMSE does,
+        is what makes a bias visible that no single pixel's noise lets through. Any alpha
+        between the two keeps SPPM's consistency: the radius still goes to 0 and the photons
+        to infinity. A serial loop: a fixed summation order keeps the image deterministic."""
+        bias_sq, variance = ti.f64(0.0), ti.f64(0.0)
+        ti.loop_config(serialize=True)
+        for i in range(self.n_pixels):
+            n = self.bias_passes[i]
+            if n >= BIAS_MIN_PASSES:
+                mean = self.bias_sum[i] / n
+                se_sq = ti.max(self.bias_sq[i] / n - mean * mean, 0.0) / (n - 1.0)
+                bias_sq += 4.0 * (mean * mean - se_sq)
+                variance += se_sq
+        factor = ti.f64(1.0)
+        if bias_sq > 0.5 * variance:
+            factor = ALPHA_FAST
+        return factor
 
     @ti.kernel
     def _effort_sums(self):
@@ -572,6 +580,6 @@ class Sppm(Method):
                 "mean_radius": float(r[seen].mean()) if seen.any() else None,
                 "alpha": self.alpha, "nonfinite_samples_dropped": int(c[1]),
                 "radius_rule": self.options["radius_rule"],
-                **({"pixel_passes_shrunk_fast": int(self.fast_passes[None])} if self.balanced_radius else {}),
+                **({"passes_shrunk_fast": self.fast_passes} if self.balanced_radius else {}),
                 "effort": {"balanced": self.balanced and self.effort is not None,
                            **(self.effort.stats() if self.effort is not None else {})}}
