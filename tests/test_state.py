@@ -56,6 +56,7 @@ def test_resume_equals_straight_bit_for_bit(method, tmp_path):
 
 @pytest.mark.parametrize("method,options,chosen,half", [
     ("sppm", {"photons": "auto"}, "photons_per_iteration", 6),
+    ("sppm", {"radius_rule": "balanced"}, "fast_passes", 24),
     ("mbe", {"light_paths": 256, "camera_paths": "auto"}, "camera_paths", 5)])
 def test_resume_of_a_balanced_render_equals_straight(tmp_path, method, options, chosen, half):
     """sppm --photons auto, mbe --camera-paths auto: the effort balance's history (and mbe's

@@ -48,7 +48,8 @@ PI = math.pi                      # use as ti.f64(PI): a bare literal is a float
 MP_BUDGET = 1 << 20               # measurement points that --camera-paths auto may allocate
 MAX_CAMERA_PATHS = 64             # and at most this many camera paths per pixel per pass
 ALPHA_FAST = 0.5                  # --radius-rule balanced: alpha's factor while the bias dominates
-BIAS_MIN_PASSES = 16              # and the passes a pixel's bias is measured over before it counts
+BIAS_MIN_PASSES = 16              # and the passes a pixel's bias is measured over before it counts,
+BIAS_Z = 3.0                      # and by how many of its standard errors the bias must dominate
 # One camera path's accumulators: direct light so far, its pixel, the initial-radius rule.
 CameraPath = ti.types.struct(direct=vec3, pixel=ti.i32, r_abs=ti.f32, r_per_dist=ti.f32, rays=ti.i32)
 
@@ -504,11 +505,14 @@ class Sppm(Method):
         squared bias / 4 (bias ~ 2 x the difference where it goes as R^2, more near edges),
         and sum(squared standard error) its photon variance. The MSE-optimal radius for a bias
         linear in R^2 against a variance linear in 1 / R^2 has bias^2 = variance / 2, so where
-        the bias is larger the radii shrink faster. Summing over the image, as the RMSE does,
-        is what makes a bias visible that no single pixel's noise lets through. Any alpha
+        the bias is larger, by BIAS_Z standard errors of its own estimate, the radii shrink
+        faster. Summing over the image, as the RMSE does, is what makes a bias visible that no
+        single pixel's noise lets through; the standard error (each pixel's term has variance
+        about 2 x 16 se^4 where it has no bias) keeps a few pixels' rare bright photons, which
+        dominate both sums where photons are scarce, from passing for bias. Any alpha
         between the two keeps SPPM's consistency: the radius still goes to 0 and the photons
         to infinity. A serial loop: a fixed summation order keeps the image deterministic."""
-        bias_sq, variance = ti.f64(0.0), ti.f64(0.0)
+        bias_sq, variance, spread = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
         ti.loop_config(serialize=True)
         for i in range(self.n_pixels):
             n = self.bias_passes[i]
@@ -517,8 +521,9 @@ class Sppm(Method):
                 se_sq = ti.max(self.bias_sq[i] / n - mean * mean, 0.0) / (n - 1.0)
                 bias_sq += 4.0 * (mean * mean - se_sq)
                 variance += se_sq
+                spread += 32.0 * se_sq * se_sq
         factor = ti.f64(1.0)
-        if bias_sq > 0.5 * variance:
+        if bias_sq - 0.5 * variance > BIAS_Z * ti.sqrt(spread):
             factor = ALPHA_FAST
         return factor
 
