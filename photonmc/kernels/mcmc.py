@@ -184,7 +184,7 @@ class ChainPool:
                  seeding: str = "copy", bootstrap: float = 0.5, bootstrap_hits: int = 8, large_step: float = 0.0,
                  suffix_mutation: float = 0.0, suffix_starts: tuple = (), block_starts: tuple = (),
                  base_records_in_burn_in: bool = False, warm_start: bool = False, uniform_estimate: bool = False,
-                 store_read: bool = False):
+                 store_read: bool = False, adopted_across_passes: bool = False):
         self.n_chains, self.n_levels, self.dims = n_chains, n_levels, dims
         # store_read: an accepted state keeps only the coordinates its evaluation read (the
         # trace's second result) and the last one, instead of all `dims`. For models whose
@@ -286,14 +286,17 @@ class ChainPool:
         self.reservoir_hits = f.scalar(ti.i32, (n_chains, n_levels))
         # 1 where the slot's state is the ladder's last probed proposal, accepted: a model
         # with `adopt(ladder, slot)` may then keep what it computed for it (mbe: the splat
-        # list) instead of tracing the state again when it deposits.
+        # list) instead of tracing the state again when it deposits. Cleared every pass
+        # unless what the model keeps does not change between passes (adopted_across_passes:
+        # the guided photons' vertex lists; mbe's splat lists follow the camera subpaths).
         self.adopted = f.scalar(ti.i32, self.n_slots)
         f.finalize()
         self.fields = f
         self._readers = {}          # FieldReaders of the tallies, by the caller's extra fields
         # Cleared at the start of every pass (_clear_pass_tallies).
         self.pass_tallies = (self.counters, self.recorded, self.ratio, self.fresh, self.uniform_T, self.uniform_n,
-                             self.reservoir_sum, self.reservoir_hits, self.adopted) + \
+                             self.reservoir_sum, self.reservoir_hits) + \
+            (() if adopted_across_passes else (self.adopted,)) + \
             ((self.block_counters,) if self.n_blocks > 1 else ())
         self.source = _ChainSource(self)
         self.stride = CPU_LADDER_STRIDE if ti.lang.impl.current_cfg().arch == ti.cpu else 1

@@ -33,6 +33,7 @@ from ..kernels.mcmc import (
     MUTATIONS,
     N_COUNTERS,
     PROBE,
+    STATE_MODE,
     SUFFIX_ACCEPTED,
     SUFFIX_TRIED,
     SWAPS_ACCEPTED,
@@ -75,6 +76,9 @@ SUFFIX_BOUNCES = (2, 3, 4)
 MUTATION_BLOCKS = 4
 # --uniform-weight auto: the chains' mutations are made with probability 1 - beta, at least this.
 MIN_MUTATION = 0.05
+# Vertex lists (GuidedPhotons.trace): each state keeps its path's photon vertices, so that it
+# deposits without being traced again; at most this many vertices over all lists, else traced.
+VERTEX_BUDGET = 1 << 21
 
 
 @data_oriented
@@ -146,7 +150,8 @@ class GuidedPhotons(Sppm):
         self.pool = ChainPool(self.n_chains, self.n_levels, dims, self.drop_failures, self.expected_values,
                               burn_in=burn_in if self.n_levels > 1 else 0.0,
                               suffix_mutation=self.suffix_mutation, suffix_starts=starts, block_starts=blocks,
-                              warm_start=bool(opts["warm_start"]), uniform_estimate=True)
+                              warm_start=bool(opts["warm_start"]), uniform_estimate=True,
+                              adopted_across_passes=True)
         f = FieldGroup(f"guided-{self.name}")
         L, n, c = self.n_levels, self.n_mp, self.n_chains
         self.target_scratch = f.vector(L, ti.f32, c)
@@ -155,6 +160,27 @@ class GuidedPhotons(Sppm):
         self.hit_weight = f.vector(L, ti.f32, c)
         self.b_mis = f.scalar(ti.f32, L)              # previous pass's normalisations, for MIS only
         self.paths_traced = f.scalar(ti.i64, ())
+        # Vertex lists: a path's photon vertices (those trace_photon visits) depend on its
+        # coordinates alone, not on the pass's MPs, so the list a proposal's probe records is
+        # the one its deposits need, in this pass and later ones. List l of slot s is
+        # list_of[s]; the ladder's probe records into list_of[n_slots + ladder]; adopting a
+        # proposal swaps the two. A list cut short (a visibility probe that stopped at its
+        # first hit) is not complete, and its state is traced again.
+        n_lists = self.pool.n_slots + c
+        self.vertex_capacity = self.max_photon_segments
+        self.keep_vertices = n_lists * self.vertex_capacity <= VERTEX_BUDGET
+        if self.keep_vertices:
+            cap = self.vertex_capacity
+            self.vertex_p = f.vector(3, ti.f32, (n_lists, cap))
+            self.vertex_n = f.vector(3, ti.f32, (n_lists, cap))
+            self.vertex_wi = f.vector(3, ti.f32, (n_lists, cap))
+            self.vertex_beta = f.vector(3, ti.f32, (n_lists, cap))
+            self.vertex_segments = f.scalar(ti.i32, (n_lists, cap))
+            self.vertex_count = f.scalar(ti.i32, n_lists)
+            self.vertex_complete = f.scalar(ti.i32, n_lists)
+            self.list_of = f.scalar(ti.i32, n_lists)
+            self.recording_list = f.scalar(ti.i32, c)      # the probe's list, or -1: not recording
+            self.deposits_from_lists = f.scalar(ti.i64, ())
         if L > 1:
             self.inv_area = f.scalar(ti.f32, n)
             self.importance = f.scalar(ti.f32, n)
@@ -180,6 +206,11 @@ class GuidedPhotons(Sppm):
     def _reset_guided(self):
         self.b_mis.fill(1.0)
         self.paths_traced[None] = 0
+        if self.keep_vertices:
+            self.list_of.from_numpy(np.arange(self.pool.n_slots + self.n_chains, dtype=np.int32))
+            self.vertex_complete.fill(0)
+            self.recording_list.fill(-1)
+            self.deposits_from_lists[None] = 0
         L = self.n_levels
         self.totals = np.zeros((L, N_COUNTERS), np.int64)
         self.b_last = np.zeros(L)
@@ -199,10 +230,66 @@ class GuidedPhotons(Sppm):
         if mode == DEPOSIT:
             self._set_deposit_weights(vkey, w, t)
         self.target_scratch[vkey] = ti.Vector([0.0] * self.n_levels)
-        _, dims = trace_photon(self.dscene, source, key, self, vkey, ti.static(self.max_photon_segments))
-        ti.atomic_add(self.paths_traced[None], 1)
-        ti.atomic_add(self.counters[3], photon_segments(dims))
+        dims = 0
+        kept = -1
+        if ti.static(self.keep_vertices):
+            kept = self._kept_list(key, vkey, mode)
+        if kept >= 0:
+            self._replay(kept, vkey, mode)
+        else:
+            if ti.static(self.keep_vertices):
+                if mode == PROBE:
+                    # record this proposal's vertices (adopt keeps them with the state)
+                    lst = self.list_of[ti.static(self.pool.n_slots) + vkey]
+                    self.vertex_count[lst] = 0
+                    self.vertex_complete[lst] = 1
+                    self.recording_list[vkey] = lst
+            _, dims = trace_photon(self.dscene, source, key, self, vkey, ti.static(self.max_photon_segments))
+            if ti.static(self.keep_vertices):
+                self.recording_list[vkey] = -1
+            ti.atomic_add(self.paths_traced[None], 1)
+            ti.atomic_add(self.counters[3], photon_segments(dims))
         return self.target_scratch[vkey], dims
+
+    @ti.func
+    def _kept_list(self, key, vkey, mode) -> ti.i32:
+        """The complete vertex list that stands for the path `key` names, or -1: a stored
+        state's, once adopted (ChainPool clears `adopted` when the slot takes a state by other
+        means), or, for a deposit of the proposal just probed (an expected-value share), the
+        ladder's probe list."""
+        kept = -1
+        slot = ti.cast(key[0], ti.i32)
+        if key[3] == STATE_MODE:
+            if self.pool.adopted[slot]:
+                lst = self.list_of[slot]
+                if self.vertex_complete[lst]:
+                    kept = lst
+        elif mode == DEPOSIT:
+            lst = self.list_of[ti.static(self.pool.n_slots) + vkey]
+            if self.vertex_complete[lst]:
+                kept = lst
+        return kept
+
+    @ti.func
+    def _replay(self, lst, vkey, mode):
+        """Visit list lst's vertices as trace_photon would have (PROBE may stop early)."""
+        if mode == DEPOSIT:
+            ti.atomic_add(self.deposits_from_lists[None], 1)
+        for k in range(self.vertex_count[lst]):
+            v = self.visit(vkey, self.vertex_p[lst, k], self.vertex_n[lst, k], self.vertex_wi[lst, k],
+                           self.vertex_beta[lst, k], self.vertex_segments[lst, k])
+            if v > 1:
+                break
+
+    @ti.func
+    def adopt(self, vkey, slot):
+        """ChainPool: slot accepted ladder vkey's last probe; its vertex list becomes the slot's
+        (the lists swap owners: the slot's old one records the ladder's next probe)."""
+        if ti.static(self.keep_vertices):
+            probe = ti.static(self.pool.n_slots) + vkey
+            lst = self.list_of[probe]
+            self.list_of[probe] = self.list_of[slot]
+            self.list_of[slot] = lst
 
     @ti.func
     def _set_deposit_weights(self, vkey, w, t):
@@ -234,6 +321,19 @@ class GuidedPhotons(Sppm):
     @ti.func
     def visit(self, vkey: ti.i32, x, n, wi, beta, segments: ti.i32) -> ti.i32:
         """Photon-vertex visitor: evaluates the targets or deposits, per the trace mode."""
+        if ti.static(self.keep_vertices):
+            lst = self.recording_list[vkey]
+            if lst >= 0:
+                k = self.vertex_count[lst]
+                if k < ti.static(self.vertex_capacity):
+                    self.vertex_p[lst, k] = x
+                    self.vertex_n[lst, k] = n
+                    self.vertex_wi[lst, k] = wi
+                    self.vertex_beta[lst, k] = beta
+                    self.vertex_segments[lst, k] = segments
+                    self.vertex_count[lst] = k + 1
+                else:
+                    self.vertex_complete[lst] = 0
         first, end = self.grid.candidates(x)
         hit = 0
         probing = self.visit_mode[vkey] == PROBE
@@ -267,7 +367,10 @@ class GuidedPhotons(Sppm):
             t[0] = 1.0
             self.target_scratch[vkey] = t
             if ti.static(self.n_levels == 1):
-                hit = 2       # V(u) is known: the rest of the path does not matter
+                hit = 2       # V(u) is known: the rest of the path does not matter...
+                if ti.static(self.keep_vertices):
+                    if self.recording_list[vkey] >= 0:
+                        hit = 1   # ...but its deposits will need it: a visible proposal is accepted
         return hit
 
     # -- the iteration -----------------------------------------------------------------------
