@@ -94,6 +94,23 @@ def test_seed_determinism(write_scene, method):
     assert not np.array_equal(a.image, c.image)
 
 
+@pytest.mark.parametrize("method,options", [("visibility", {}), ("spatial-tf", {"expected_values": True})])
+def test_kept_vertices_give_the_traced_image(write_scene, monkeypatch, method, options):
+    """A state's deposits replay the vertices its probe recorded (docs/guiding.md, "States
+    deposit from their kept vertices"): the image must be bit for bit the one of tracing every
+    deposit again, with fewer paths traced. (Fixed camera paths: the effort balance counts
+    the segments traced, so with auto it may choose another K.)"""
+    from photonmc.methods import guided
+    scene = _open_box(write_scene, res=12)
+    kept = render(scene, method, 6, seed=5, camera_paths=1, **options)
+    monkeypatch.setattr(guided, "VERTEX_BUDGET", 0)       # no lists: every deposit traced
+    traced = render(scene, method, 6, seed=5, camera_paths=1, **options)
+    assert traced.stats["deposits_from_kept_vertices"] == 0
+    assert kept.stats["deposits_from_kept_vertices"] > 0
+    assert kept.stats["photon_paths_traced"] < traced.stats["photon_paths_traced"]
+    assert np.array_equal(kept.image, traced.image)
+
+
 @pytest.mark.parametrize("chains", [1, 4096])
 def test_one_chain_and_many_chains(write_scene, chains):
     """One chain (every step sequential) and 4096 chains (few steps each) both give sppm's

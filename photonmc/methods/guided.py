@@ -235,7 +235,8 @@ class GuidedPhotons(Sppm):
         if ti.static(self.keep_vertices):
             kept = self._kept_list(key, vkey, mode)
         if kept >= 0:
-            self._replay(kept, vkey, mode)
+            if ti.static(self.keep_vertices):
+                self._replay(kept, vkey, mode)
         else:
             if ti.static(self.keep_vertices):
                 if mode == PROBE:
@@ -474,6 +475,7 @@ class GuidedPhotons(Sppm):
             "uniform_weight": self.beta.value, "uniform_weight_auto": self.beta.auto,
             "mutation_probability": self.pool.mutation_probability,
             "photon_paths_traced": int(self.paths_traced[None]),
+            "deposits_from_kept_vertices": int(self.deposits_from_lists[None]) if self.keep_vertices else 0,
             "levels": levels,
         })
         if swaps:
