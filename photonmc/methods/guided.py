@@ -164,8 +164,9 @@ class GuidedPhotons(Sppm):
         # coordinates alone, not on the pass's MPs, so the list a proposal's probe records is
         # the one its deposits need, in this pass and later ones. List l of slot s is
         # list_of[s]; the ladder's probe records into list_of[n_slots + ladder]; adopting a
-        # proposal swaps the two. A list cut short (a visibility probe that stopped at its
-        # first hit) is not complete, and its state is traced again.
+        # proposal swaps the two. A recording probe traces the whole path (visibility's
+        # stops at its first hit otherwise); a list that overflowed would not be complete,
+        # and its state would be traced again.
         n_lists = self.pool.n_slots + c
         self.vertex_capacity = self.max_photon_segments
         self.keep_vertices = n_lists * self.vertex_capacity <= VERTEX_BUDGET

@@ -112,8 +112,8 @@ class Sppm(Method):
         if opts["radius_rule"] not in self.RADIUS_RULES:
             raise SettingsError(f"--radius-rule must be one of {', '.join(self.RADIUS_RULES)}, "
                                 f"got '{opts['radius_rule']}'")
-        # balanced: a pixel whose measured radius bias outweighs its noise shrinks faster
-        # (docs/guiding.md, "A radius that balances its bias against the noise")
+        # balanced: every radius shrinks faster while the image's measured radius bias
+        # outweighs its noise (docs/guiding.md, "A radius that balances its bias against the noise")
         self.balanced_radius = opts["radius_rule"] == "balanced"
         self.alpha_factor = 1.0       # its factor on alpha for this pass
         self.fast_passes = 0          # and the passes it shrank faster
