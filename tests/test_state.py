@@ -60,7 +60,8 @@ def test_resume_equals_straight_bit_for_bit(method, tmp_path):
     ("mbe", {"light_paths": 256, "camera_paths": "auto"}, "camera_paths", 5)])
 def test_resume_of_a_balanced_render_equals_straight(tmp_path, method, options, chosen, half):
     """sppm --photons auto, mbe --camera-paths auto: the effort balance's history (and mbe's
-    last estimate it compares with) is part of the state, so the resumed render makes the same
+    last estimate it compares with) is part of the state, as is sppm --radius-rule balanced's
+    (its bias sums and the next pass's choice), so the resumed render makes the same
     choices (photons per pass, camera subpaths per pixel) and gives the same image."""
     j = Job(scene=CORNELL, params=SMALL, method=method, seed=3, options=options)
     straight = rendered(j, 2 * half)
