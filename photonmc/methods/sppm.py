@@ -241,7 +241,7 @@ class Sppm(Method):
         self._update(self.alpha * self.alpha_factor, n_p, k)
         if self.balanced_radius:
             self.alpha_factor = self._balance_radius()
-            self.fast_passes += self.alpha_factor < 1.0
+            self.fast_passes += int(self.alpha_factor < 1.0)
         if self.effort is None:
             return
         self._effort_sums()
