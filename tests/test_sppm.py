@@ -244,7 +244,8 @@ def test_balanced_radius_rule_leaves_an_unbiased_furnace_alone(write_scene):
     finds no bias, shrinks faster in (nearly) no pass, and the answer stays the analytic one.
     Its test asks the summed squared bias to exceed the balance by three standard errors of
     that sum, which noise alone does in at most about 1 pass in 700 (0 of 120 measured); without the
-    guard it fired in 1 pass in 12 here, and a rule that took noise for bias in most."""
+    guard about 1 pass in 12 would (from the sum's spread), and a rule that took noise for
+    bias most would."""
     scene = load_scene(write_scene(furnace_xml("sphere")))
     expected = furnace_expectation(3)
     p = prepare(scene, method="sppm", max_depth=3, options={"photons": 4096, "radius_rule": "balanced"})
