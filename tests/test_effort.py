@@ -81,6 +81,23 @@ def test_least_variance_share_of_indistinguishable_estimates_is_undefined():
     assert least_variance_share(0.0, 0.0, 0.0) is None
 
 
+def test_untrimmed_camera_variance_keeps_a_rare_event():
+    """Consecutive iterations whose spread is 1e-3, and once in 300 iterations 100x that (a
+    camera path that finds a small lamp through glass): the trimmed estimate (the photon
+    methods') leaves the event out, and forgets it after HISTORY iterations anyway; the
+    untrimmed one (mbe's) is the plain mean of every estimate since the start, the event
+    included, which is the variance the image's error shows (docs/mbe.md)."""
+    spreads = [2e-3] * 300
+    spreads[40] = 0.2
+    trimmed, plain = EffortBalance(16, 100, 0.75), EffortBalance(16, 100, 0.75, trim_camera=False)
+    for b in (trimmed, plain):
+        for spread in spreads:
+            b.observe(100, spread, 0.0, 1.0, 500, 300)
+    assert trimmed.shares()[0] == pytest.approx(1e-3)
+    assert plain.shares()[0] == pytest.approx(sum(spreads[1:]) / 2 / 299)      # the first has no predecessor
+    assert plain.shares()[0] > 1.3e-3
+
+
 def test_no_photon_seen_holds_photons_and_no_camera_error_raises_them():
     b = EffortBalance(100, 100, 0.7)
     for _ in range(3):

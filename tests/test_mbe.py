@@ -149,6 +149,29 @@ def test_camera_paths_auto_follows_where_the_error_is():
     assert chosen["cornell-box"] >= 4 and chosen["caustic"] <= 2
 
 
+def test_radius_follows_the_camera_subpaths_not_the_passes():
+    """The merging radius is indexed by the camera subpaths per pixel traced so far: a pass of
+    K shrinks it as K passes of one would (docs/mbe.md, "The radius follows the camera
+    subpaths"), so that the balance's K does not slow it down. Cornell box 16x16, 10 passes:
+    with K = 4 the last radius is r_1 40^((alpha-1)/2), the radius of vcm's 40th iteration;
+    with K = 1 the schedule is vcm's (r_1 10^((alpha-1)/2)); with auto it follows the K the
+    balance chose, pass by pass."""
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 16})
+    for options, index in (({"camera_paths": 4}, 40), ({"camera_paths": 1}, 10), ({}, None)):
+        p = prepare(scene, method="mbe", seed=0, options=options)
+        m = p.method
+        chosen = []
+        for _ in range(10):
+            chosen.append(m.camera_paths)
+            m.iterate()
+        expected = m.r1 * (index if index else sum(chosen)) ** ((m.alpha - 1.0) / 2.0)
+        print(options, "K per pass", chosen, "radius", m.radius, "r_1", m.r1)
+        assert m.radius == pytest.approx(expected, rel=1e-12)
+        if index is None:
+            assert sum(chosen) > 10          # the balance raised K on this scene
+        p.release()
+
+
 @pytest.mark.parametrize("balance", ["mse", "relmse"])
 def test_camera_paths_auto_keeps_the_furnace_and_reports_its_choice(write_scene, balance):
     """--camera-paths auto: K changes from pass to pass (MIS counts and pairing follow it);

@@ -48,8 +48,14 @@ DEPOSIT_WORK = 1.5
 
 
 class EffortBalance:
-    def __init__(self, n_pixels: int, initial: int, alpha: float):
+    def __init__(self, n_pixels: int, initial: int, alpha: float, trim_camera: bool = True):
+        """trim_camera: V_c is the mean of the last HISTORY estimates without their largest
+        1/TRIM (the photon methods' choice, see shares); False: the plain mean of every
+        estimate since the start (mbe's, docs/mbe.md, "The radius follows the camera
+        subpaths")."""
         self.n_pixels = n_pixels
+        self.trim_camera = bool(trim_camera)
+        self.camera_sum = 0.0                # every V_c estimate so far (trim_camera False)
         self.photons = int(initial)
         self.alpha = float(alpha)
         self.camera_variances = []           # per-iteration V_c estimates
@@ -87,6 +93,7 @@ class EffortBalance:
         self.camera_variances.append((spread - v_p * (1.0 / photons + 1.0 / last))
                                      / (1.0 / camera_paths + 1.0 / last_k))
         self.photon_variances_r2.append(v_p * radius_sq)
+        self.camera_sum += self.camera_variances[-1]
         del self.camera_variances[:-HISTORY], self.photon_variances_r2[:-HISTORY]
         self.radius_sq = radius_sq
         self.samples += 1
@@ -100,9 +107,17 @@ class EffortBalance:
         # caustic), and a plain mean would let that one event steer the rest of the render.
         # V_p: a plain mean, since where photons are scarce most passes see none and the
         # signal is in the rare passes that do (a median or trimmed mean would be 0 there).
-        camera = sorted(self.camera_variances)     # a few hundred floats: cheaper than NumPy's
-        keep = len(camera) - len(camera) // TRIM
-        return (math.fsum(camera[:keep]) / keep,
+        # Without the trim (mbe), the plain mean since the start: that event is the error
+        # there (on the caustic 2-4 pixels of rare camera paths hold 90 % of the squared
+        # error at 400 iterations), and a mean over the whole render keeps it once it is seen
+        # instead of forgetting it after HISTORY iterations.
+        if self.trim_camera:
+            camera = sorted(self.camera_variances)     # a few hundred floats: cheaper than NumPy's
+            keep = len(camera) - len(camera) // TRIM
+            v_c = math.fsum(camera[:keep]) / keep
+        else:
+            v_c = self.camera_sum / self.samples
+        return (v_c,
                 math.fsum(self.photon_variances_r2) / len(self.photon_variances_r2) / self.radius_sq)
 
     def _optimum(self, deposits_as_camera_work: bool):

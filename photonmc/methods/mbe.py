@@ -279,12 +279,15 @@ class Mbe(Vcm):
         if self.camera_paths_auto:
             self.camera_paths = 1
         self.pool.large_step = self.large_step
-        self.effort = EffortBalance(self.n_pixels, self.n_light, self.alpha)   # steers K with auto; stats
+        # Steers K with auto; stats. V_c untrimmed: see EffortBalance.shares.
+        self.effort = EffortBalance(self.n_pixels, self.n_light, self.alpha, trim_camera=False)
         self.light_work_last = np.zeros(3)      # light_counters[1:] after the last pass
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
         self.pre_scale_host = np.ones(self.n_levels, np.float32)   # pre_scale's value, read without a kernel
         self.b_mis_host = np.ones(self.n_levels, np.float32)       # b_mis's, likewise
         self.steps_last = self.n_light
+        self.steps_sum = 0
+        self.camera_paths_traced = 0        # camera subpaths per pixel so far: the radius's index
         self.b_last = np.zeros(self.n_levels)
         self.b_sum = np.zeros(self.n_levels)
         self.passes_with_b = 0
@@ -298,7 +301,9 @@ class Mbe(Vcm):
         pass's light subpath count N_L is this length: the MIS counts and normalisations
         follow it. (A pass that grew toward the balance's n* where K is 1 ran away on the
         caustic: 4096 -> 45k steps, RMSE 2.6x: V_p N_L grows with N_L, chains' records being
-        correlated over a pass, and the radius, shrinking per pass, stayed large; docs/mbe.md.)"""
+        correlated over a pass, and the radius, shrinking per pass, stayed large; a pass that
+        shrank toward n* where the camera side dominates helped the caustic and the Cornell
+        box and lost 4-10 % on three gap-lit rooms; docs/mbe.md.)"""
         n = self.n_light
         if self.iterations > 0:
             b0 = self.b_last[0]
@@ -306,13 +311,23 @@ class Mbe(Vcm):
             want = self.steps_last * 2 if b0 <= 0 else math.ceil(REGENERATIONS / (b0 * uniform_per_step)) * self.n_chains
             n = max(n, min(int(want), MAX_PASS_FACTOR * self.n_light))
         self.steps_last = n
+        self.steps_sum += n
         return n
 
     def _iterate(self):
         it = self.iteration_index
-        self.radius = self._radius_at(it)
-        steps = self._steps_this_pass()
         k = self.camera_paths
+        # The merging radius follows the camera subpaths per pixel traced so far, not the
+        # passes: a pass of K subpaths per pixel shrinks it as K passes of one would, so that
+        # the balance's K splits the work without slowing the radius (and its bias) down.
+        # Counted by passes, the Cornell box's K = 14 left 123 passes in 15 s and a radius
+        # 1.3x vcm's. Measured, 15 s, interleaved with vcm: Cornell box 0.89x -> 0.74x vcm's
+        # RMSE, closet 0.96x -> 0.83x, attic 0.91x -> 0.86x, K = 1 unchanged (docs/mbe.md,
+        # "The radius follows the camera subpaths"). r_i -> 0 and the variance still falls
+        # as the passes accumulate, so merging stays consistent (Knaus & Zwicker 2011).
+        self.radius = self._radius_at(self.camera_paths_traced + k - 1)
+        self.camera_paths_traced += k
+        steps = self._steps_this_pass()
         n_subpaths = k * self.n_pixels
         # Sample counts relative to the connections': a light subpath connects to one of the
         # K x pixels camera subpaths, so a pixel gets N_L / pixels connections whatever K;
@@ -727,7 +742,8 @@ class Mbe(Vcm):
         swap = t[0, SWAPS_ACCEPTED] / max(int(t[0, SWAPS_TRIED]), 1)
         return (f"radius {self.radius:.3g}  b_V {self.b_last[0]:.2g}  acc {acc[0]:.2f}/{acc[1]:.2f}  "
                 f"swap {swap:.2f}  beta {self.beta.value:.2f}" +
-                (f"  K {self.camera_paths}" if self.camera_paths_auto else ""))
+                (f"  K {self.camera_paths}" if self.camera_paths_auto else "") +
+                (f"  steps {self.steps_last}" if self.steps_last != self.n_light else ""))
 
     def method_stats(self):
         t = self.totals
@@ -750,6 +766,7 @@ class Mbe(Vcm):
         chain_bytes = self.pool.fields.nbytes + self.chain_fields.nbytes
         return {
             "light_paths_per_iteration": self.n_light, "chain_steps_last_iteration": self.steps_last,
+            "chain_steps_mean": self.steps_sum / max(self.iterations, 1),
             "camera_paths_per_pixel": self.camera_paths,
             "camera_paths_per_pixel_auto": self.camera_paths_auto,
             "uniform_weight": self.beta.value, "uniform_weight_auto": self.beta.auto,
