@@ -82,8 +82,9 @@ def test_least_variance_share_of_indistinguishable_estimates_is_undefined():
 
 
 def test_untrimmed_camera_variance_keeps_a_rare_event():
-    """Consecutive iterations whose spread is 1e-3, and once in 300 iterations 100x that (a
-    camera path that finds a small lamp through glass): the trimmed estimate (the photon
+    """Consecutive iterations whose camera variance is 1e-3 (spread 2e-3 at one camera path
+    each), and once in 300 iterations a spread 100x that (a camera path that finds a small
+    lamp through glass): the trimmed estimate (the photon
     methods') leaves the event out, and forgets it after HISTORY iterations anyway; the
     untrimmed one (mbe's) is the plain mean of every estimate since the start, the event
     included, which is the variance the image's error shows (docs/mbe.md)."""

@@ -303,7 +303,7 @@ class Mbe(Vcm):
         caustic: 4096 -> 45k steps, RMSE 2.6x: V_p N_L grows with N_L, chains' records being
         correlated over a pass, and the radius, shrinking per pass, stayed large; a pass that
         shrank toward n* where the camera side dominates helped the caustic and the Cornell
-        box and lost 4-10 % on three gap-lit rooms; docs/mbe.md.)"""
+        box and lost 4-13 % in four gap-lit rooms; docs/mbe.md.)"""
         n = self.n_light
         if self.iterations > 0:
             b0 = self.b_last[0]
