@@ -170,6 +170,10 @@ def _add_vcm_options(parser):
                         "ladders, and gives the uniform proposals at least that share of mbe's steps (the "
                         "guided methods mutate with probability 1 - share); 0: the chains' estimate alone; "
                         "1: the uniform proposals' alone (docs/mbe.md, docs/guiding.md)")
+    g.add_argument("--vcm-passes", choices=["auto", "off"],
+                   help="mbe: auto (default) makes a pass a vcm pass (independent light subpaths, no chains) "
+                        "where its chain passes predict that a vcm pass removes more error per unit of work; "
+                        "off: chain passes only (docs/mbe.md, 'vcm passes where the chains do not pay')")
     g.add_argument("--balance", choices=["mse", "relmse"],
                    help="mbe: what the effort balance behind --camera-paths auto minimises: the image's MSE "
                         "(default) or its relative MSE, each pixel's error weighted by 1 / (its running mean^2 "
@@ -185,7 +189,7 @@ def _method_options(args) -> dict:
             "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis,
             "large_step": args.large_step, "suffix_mutation": args.suffix_mutation,
             "mutation": args.mutation, "warm_start": args.warm_start,
-            "balance": args.balance, "uniform_weight": args.uniform_weight}
+            "balance": args.balance, "uniform_weight": args.uniform_weight, "vcm_passes": args.vcm_passes}
 
 
 def _seed_list(text: str) -> list[int]:

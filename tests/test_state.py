@@ -74,6 +74,24 @@ def test_resume_of_a_balanced_render_equals_straight(tmp_path, method, options, 
     p.release()
 
 
+def test_resume_across_mbe_vcm_passes_equals_straight(tmp_path):
+    """mbe's vcm passes (methods/pass_choice.py) render into its film with a Vcm of their own:
+    its fields and the choice's sums are part of the state, so a render saved while vcm passes
+    win (mesh-room, 16x16: four chain passes, then vcm passes) resumes to the same image and
+    the same sequence of pass kinds."""
+    j = Job(scene=str(SCENES / "mesh-room" / "scene.xml"), params=SMALL, method="mbe", seed=3,
+            options={"light_paths": 256})
+    straight = rendered(j, 14)
+    [saved] = state.load(state.save(tmp_path / "mbe.state", [rendered(j, 7)]))
+    assert saved.plain["pass_choice.vcm_passes"] > 0
+    p, _ = resume(saved)
+    for _ in range(7):
+        p.method.iterate()
+    assert p.method.pass_choice.vcm_passes == straight.plain["pass_choice.vcm_passes"]
+    assert np.array_equal(p.method.image(), straight.image)
+    p.release()
+
+
 def test_a_state_that_misses_part_of_the_method_does_not_resume_straight(monkeypatch, tmp_path):
     """The check above can fail: leave the chain pool out of visibility's state and the
     resumed image differs."""

@@ -37,6 +37,12 @@ lower error on both gap-lit scenes (docs/mbe.md).
 Effort balance (--camera-paths auto): the light side's variance from the even against the
 odd ladders (light_frame per level and ladder parity), the camera side's from consecutive
 iterations, work counted; K = N_L / n* (docs/mbe.md, "The defaults").
+
+vcm passes (--vcm-passes auto, the default): a pass may instead be one of vcm's (independent
+light subpaths, one camera subpath per pixel, into this film) where the chain passes'
+measurements predict that it removes more error per unit of work; chain passes then keep a
+tenth of the work (methods/pass_choice.py; docs/mbe.md, "vcm passes where the chains do not
+pay").
 """
 import math
 
@@ -70,8 +76,10 @@ from ..kernels.photon import dimensions, photon_segments, trace_photon
 from ..kernels.sampling import luminance, vec3
 from ..kernels.subpath_store import BYTES_PER_STORED_VERTEX
 from ..kernels.vcm_mis import PathVertex
+from .base import MethodSettings
 from .effort import EffortBalance, UniformWeight, uniform_weight_option
 from .guided import LADDER_BURN_IN
+from .pass_choice import PassChoice
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 from ..taichi_frontend import data_oriented
 
@@ -156,7 +164,7 @@ class Mbe(Vcm):
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
                "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True,
-               "balance": "mse", "uniform_weight": "auto"}
+               "balance": "mse", "uniform_weight": "auto", "vcm_passes": "auto"}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
@@ -232,6 +240,17 @@ class Mbe(Vcm):
         self.list_stats = f.scalar(ti.i64, 4)           # deposits from a list, overflows, entries and lists adopted
         f.finalize()
         self.chain_fields = f
+        if opts["vcm_passes"] not in ("auto", "off"):
+            raise SettingsError(f"--vcm-passes must be 'auto' or 'off', got '{opts['vcm_passes']}'")
+        # vcm passes (methods/pass_choice.py): a Vcm that renders into this film, its light
+        # subpaths --light-paths, its radius set by this method's index.
+        self.independent = None
+        if opts["vcm_passes"] == "auto":
+            self.independent = Vcm(dscene, MethodSettings(settings.seed, settings.max_depth, {
+                "light_paths": self.n_light, "alpha": self.alpha, "radius": opts["radius"],
+                "radius_pixels": opts["radius_pixels"]}))
+            self.independent.film.release()
+            self.independent.film = self.film
         self._reset_chains()
 
     @staticmethod
@@ -264,11 +283,16 @@ class Mbe(Vcm):
     def release(self):
         self.pool.release()
         self.chain_fields.release()
+        if self.independent is not None:
+            self.independent.film = None        # this method's film, released below
+            self.independent.release()
         super().release()
 
     def _reset(self):
         super()._reset()
         self.pool.reset()
+        if self.independent is not None:
+            self.independent.counters.fill(0)
         self._reset_chains()
 
     def _reset_chains(self):
@@ -281,7 +305,8 @@ class Mbe(Vcm):
         self.pool.large_step = self.large_step
         # Steers K with auto; stats. V_c untrimmed: see EffortBalance.shares.
         self.effort = EffortBalance(self.n_pixels, self.n_light, self.alpha, trim_camera=False)
-        self.light_work_last = np.zeros(3)      # light_counters[1:] after the last pass
+        self.light_work_last = np.zeros(4)      # light_counters after the last pass
+        self.pass_choice = PassChoice(self.n_pixels, self.n_light, self.independent is not None)
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
         self.pre_scale_host = np.ones(self.n_levels, np.float32)   # pre_scale's value, read without a kernel
         self.b_mis_host = np.ones(self.n_levels, np.float32)       # b_mis's, likewise
@@ -316,6 +341,22 @@ class Mbe(Vcm):
 
     def _iterate(self):
         it = self.iteration_index
+        if self.pass_choice.next_is_vcm(self.effort, self.camera_paths, self.max_camera_paths, self.steps_last,
+                                        self.radius ** 2):
+            self._vcm_pass(it)
+        else:
+            self._chain_pass(it)
+
+    def _vcm_pass(self, it: int):
+        """A pass of vcm's (--light-paths independent light subpaths, one camera subpath per
+        pixel) into this film, with the radius of this method's next camera subpath."""
+        self.independent.r1 = self.r1
+        self.independent.vcm_pass(it, self.camera_paths_traced)
+        self.radius = self.independent.radius
+        self.camera_paths_traced += 1
+        self.work_done += self.n_light + self.n_pixels
+
+    def _chain_pass(self, it: int):
         k = self.camera_paths
         # The merging radius follows the camera subpaths per pixel traced so far, not the
         # passes: a pass of K subpaths per pixel shrinks it as K passes of one would, so that
@@ -372,7 +413,8 @@ class Mbe(Vcm):
         sums = self._end_pass(*frame_scales, *sum_scales, self.relative_balance,
                               max(self.film.film.samples_per_pixel, 0))
         self.film.count_flushed()
-        self._observe_effort(steps, k, n, sums, beta, uniform_halves, tallies["extra"][0])
+        uniform_counts = [tallies["uniform_per_chain"][parity::2].sum() for parity in (0, 1)]
+        self._observe_effort(steps, k, n, sums, beta, uniform_halves, uniform_counts, tallies["extra"][0])
         # The next pass's MIS normalisations, level scales and mutation sizes stay on the host
         # until the next _camera_side writes them (one launch less per iteration).
         if (b > 0).all():
@@ -410,7 +452,8 @@ class Mbe(Vcm):
         sums = (*full, full_uniform, *halves[0], uniform_halves[0], *halves[1], uniform_halves[1])
         return frame, sums, uniform_halves, beta
 
-    def _observe_effort(self, steps: int, k: int, vertices: int, sums, beta: float, uniform_halves, light_counters):
+    def _observe_effort(self, steps: int, k: int, vertices: int, sums, beta: float, uniform_halves, uniform_counts,
+                        light_counters):
         """The effort balance's view of this iteration (methods/effort.py), and with
         --camera-paths auto the next pass's K; then the uniform proposals' weight beta for the
         next pass. The light side's variance comes from the even and odd ladders
@@ -423,8 +466,8 @@ class Mbe(Vcm):
         # proposals', their product; the light side's is that of the combination.
         s_chains, s_uniform, s_product = float(sums[1]), float(sums[2]), float(sums[3])
         s_light = (1.0 - beta) ** 2 * s_chains + beta ** 2 * s_uniform + 2.0 * beta * (1.0 - beta) * s_product
-        light_work = light_counters[1:].astype(np.float64)
-        segments, rays, merges = light_work - self.light_work_last
+        light_work = light_counters.astype(np.float64)
+        traced, segments, rays, merges = light_work - self.light_work_last
         self.light_work_last = light_work
         n_even, n_odd = (self.n_chains + 1) // 2, self.n_chains // 2
         # Var(t_even - t_odd) = (V_p / n) (c / n_even + c / n_odd) for c ladders in all; with
@@ -434,6 +477,13 @@ class Mbe(Vcm):
         n_subpaths = k * self.n_pixels
         self.effort.observe(steps, sums[0] / self.n_pixels, v_p_times_n, self.radius ** 2,
                             n_subpaths + 3.0 * vertices, segments + rays, camera_paths=k, deposits=merges)
+        n_u = [float(c) for c in uniform_counts]
+        uniform_variance = None
+        if min(n_u) > 0:
+            # one uniform proposal's variance: Var(U_even - U_odd) = V_u (1/n_even + 1/n_odd)
+            uniform_variance = s_uniform / self.n_pixels / (1.0 / n_u[0] + 1.0 / n_u[1])
+        self.pass_choice.observe_chain_pass(steps, k, traced, segments + rays, merges, uniform_variance,
+                                            self.radius ** 2)
         if self.camera_paths_auto:
             self.camera_paths = self.effort.next_camera_paths(steps, self.max_camera_paths)
         if n_odd > 0 and min(uniform_halves) > 0.0:
@@ -743,7 +793,8 @@ class Mbe(Vcm):
         return (f"radius {self.radius:.3g}  b_V {self.b_last[0]:.2g}  acc {acc[0]:.2f}/{acc[1]:.2f}  "
                 f"swap {swap:.2f}  beta {self.beta.value:.2f}" +
                 (f"  K {self.camera_paths}" if self.camera_paths_auto else "") +
-                (f"  steps {self.steps_last}" if self.steps_last != self.n_light else ""))
+                (f"  steps {self.steps_last}" if self.steps_last != self.n_light else "") +
+                (f"  vcm passes {self.pass_choice.vcm_passes}" if self.pass_choice.vcm_passes else ""))
 
     def method_stats(self):
         t = self.totals
@@ -772,6 +823,7 @@ class Mbe(Vcm):
             "uniform_weight": self.beta.value, "uniform_weight_auto": self.beta.auto,
             "large_step_last_iteration": self.pool.large_step,
             "effort": self.effort.stats(),
+            "passes": self.pass_choice.stats(),
             "chains": self.n_chains,
             "mis": "modified" if self.modified_mis else "plain",
             "radius": self.radius, "initial_radius": self.r1, "alpha": self.alpha,
@@ -787,6 +839,8 @@ class Mbe(Vcm):
             "camera_vertices_mean": self.vertices_sum / max(self.iterations, 1),
             "camera_vertex_capacity": vertices,
             "camera_vertex_store_grown": self.store_grown,
-            "memory_bytes": {"camera_vertices_and_grid": camera_bytes, "chains_and_level_frames": chain_bytes},
+            "memory_bytes": {"camera_vertices_and_grid": camera_bytes, "chains_and_level_frames": chain_bytes,
+                             "vcm_passes_light_vertices": (self.independent.store.capacity * BYTES_PER_STORED_VERTEX
+                                                           if self.independent is not None else 0)},
             "nonfinite_samples_dropped": self.film.dropped(),
         }

@@ -145,8 +145,13 @@ class Vcm(Method):
         return self.r1 * (iteration + 1) ** ((self.alpha - 1.0) / 2.0)
 
     def _iterate(self):
-        it = self.iteration_index
-        self.radius = self._radius_at(it)
+        self.vcm_pass(self.iteration_index, self.iteration_index)
+        self.work_done += self.n_light + self.n_pixels
+
+    def vcm_pass(self, it: int, radius_index: int):
+        """One iteration: random numbers drawn for index `it`, merging radius r_(radius_index)
+        (the same index for vcm; mbe's vcm passes index it by its camera subpaths)."""
+        self.radius = self._radius_at(radius_index)
         eta = PI * self.radius ** 2 * self.n_light
         # MisConstants and r^2, as scalars (a vector argument costs more host time)
         consts = (eta if self.use_vm else 0.0, 1.0 / eta if self.use_vc else 0.0, float(self.n_light), 1.0,
@@ -172,7 +177,6 @@ class Vcm(Method):
             self.vertices_last = n
         self._camera_pass(store, grid, self.seed_u32, it, self.max_depth, 1.0 / (PI * self.radius ** 2 * self.n_light))
         self.film.count_flushed()
-        self.work_done += self.n_light + self.n_pixels
 
     def _index_serial(self, n_paths: int) -> tuple[bool, bool]:
         """Whether index_vertices' loops run serially (runtime.serial_loop): over the paths,

@@ -1,0 +1,125 @@
+"""mbe's choice, pass by pass, between a chain pass and a vcm pass (docs/mbe.md, "vcm passes
+where the chains do not pay").
+
+mbe's chains pay where few light subpaths contribute. Where most do, their correlated
+records are worth no more than as many independent light subpaths, and a chain pass costs
+more than vcm's light pass (the chains' bookkeeping). Both kinds of pass are estimates of the
+image with the same merging radius for a given index (mbe indexes it by camera subpaths per
+pixel), and each joins the film as one sample of every pixel, so the kind may change from
+pass to pass without changing what the film converges to. mbe takes the kind with the smaller
+predicted variance x work, both predicted from what its chain passes measure:
+
+    chain pass:  (V_c / K + V_p / n) W_chain(K),     vcm pass:  (V_c + V_u / N_L) W_vcm,
+
+V_c the camera side's variance per camera subpath and V_p the chains' light side per step
+(the effort balance's, methods/effort.py), V_u the variance of one uniform proposal's splat
+list (the pass's uniform proposals, even ladders against odd: the light side of independent
+light subpaths, which is what vcm traces), K the camera subpaths per pixel of a chain pass
+(at the K that minimises its product), n its chain steps, N_L --light-paths. Work is counted,
+not timed, so that a seed gives one image: the effort balance's counts (rays, segments, merge
+candidates) in a cost model fitted to measured times (CAMERA_WORK_WEIGHT, CHAIN_STEP_WORK).
+While vcm passes win, chain passes still take CHAIN_WORK_SHARE of the work, so that the
+measurements, and the chains' states, stay current.
+
+A vcm pass traces one camera subpath per pixel. vcm passes of several (each camera subpath a
+whole VCM estimator with the pass's light subpaths) were measured and dropped: chosen by the
+same prediction they took over the held-out closet, where independent light subpaths rarely
+contribute and V_u, estimated from few contributing proposals, comes out low in most passes
+(its distribution is heavy-tailed), and mbe's RMSE there went from 0.97x vcm's to 1.7x.
+"""
+from __future__ import annotations
+
+import math
+
+from .effort import DEPOSIT_WORK
+
+# Time per pass ~ CAMERA_WORK_WEIGHT x camera work + light work + CHAIN_STEP_WORK x chain steps,
+# in the effort balance's units (camera work: a ray per camera subpath, three per stored
+# vertex; light work: segments, shadow rays, DEPOSIT_WORK per merge candidate). Fitted to the
+# measured time per iteration of mbe's chain passes against vcm's, interleaved, on eight rooms
+# at 64x64 with K from 1 to 16 (bundled and held out): the fit is within 20 % of every measured
+# ratio, where counting camera work at full weight missed the rooms with K > 1 by 1.3-1.6x
+# (docs/mbe.md, "vcm passes where the chains do not pay"). A chain step's own cost (proposal,
+# acceptance, the splat list kept and deposited) is CHAIN_STEP_WORK segments.
+CAMERA_WORK_WEIGHT = 0.2
+CHAIN_STEP_WORK = 3.0
+# While vcm passes win, chain passes still take this share of the work (counted as above).
+# (At least every 8th pass instead spent about half of the caustic's time on chain passes,
+# each 7x a vcm pass's cost at K = 5.)
+CHAIN_WORK_SHARE = 0.1
+MIN_CHAIN_PASSES = 4     # chain passes measured before the first vcm pass
+
+
+class PassChoice:
+    def __init__(self, n_pixels: int, n_light: int, enabled: bool):
+        self.n_pixels, self.n_light, self.enabled = n_pixels, int(n_light), bool(enabled)
+        self.uniform_r2_sum = 0.0       # V_u x r^2 summed over chain passes (V_u grows as 1/r^2)
+        self.uniform_passes = 0
+        self.traced = 0.0               # light subpaths traced by chain passes
+        self.steps = 0.0                # chain steps
+        self.light_work = 0.0           # their segments and shadow rays
+        self.merges_per_k = 0.0         # merge candidates / K (they grow with the camera vertices)
+        self.chain_passes = 0
+        self.vcm_passes = 0
+        self.vcm_work_since_chain = 0.0  # work of the vcm passes since the last chain pass
+        self.ratio = None               # last predicted (chain variance x work) / (vcm's)
+
+    def observe_chain_pass(self, steps: int, k: int, traced: float, light_work: float, merges: float,
+                           uniform_variance: float | None, radius_sq: float) -> None:
+        """A chain pass: its steps, K, light subpaths traced, their segments and shadow rays,
+        merge candidates, and the variance of one uniform proposal's splat list (mean over
+        pixels, luminance), None where the pass had too few uniform proposals to tell."""
+        self.chain_passes += 1
+        self.vcm_work_since_chain = 0.0
+        self.steps += steps
+        self.traced += traced
+        self.light_work += light_work
+        self.merges_per_k += merges / k
+        if uniform_variance is not None:
+            self.uniform_r2_sum += uniform_variance * radius_sq
+            self.uniform_passes += 1
+
+    def next_is_vcm(self, effort, k: int, most_k: int, steps: int, radius_sq: float) -> bool:
+        """Whether the next pass should be a vcm pass, against a chain pass of `steps` steps
+        and K camera subpaths per pixel (at most `most_k`)."""
+        self.ratio = self._ratio(effort, most_k, steps, radius_sq)
+        if not (self.enabled and self.ratio is not None and self.ratio > 1.0):
+            return False
+        chain_work, vcm_work = self.work(effort, k, steps)
+        if self.vcm_work_since_chain * CHAIN_WORK_SHARE >= chain_work * (1.0 - CHAIN_WORK_SHARE):
+            return False
+        self.vcm_passes += 1
+        self.vcm_work_since_chain += vcm_work
+        return True
+
+    def _ratio(self, effort, most_k: int, steps: int, radius_sq: float) -> float | None:
+        shares = effort.shares()
+        if (self.chain_passes < MIN_CHAIN_PASSES or shares is None or self.uniform_passes == 0
+                or self.traced <= 0 or effort.sum_camera_paths <= 0 or not radius_sq > 0):
+            return None
+        v_c, v_p = max(shares[0], 0.0), max(shares[1], 0.0)
+        v_u = self.uniform_r2_sum / self.uniform_passes / radius_sq
+        # The chain pass at its best K: the balance moves K by at most a factor 2 per chain
+        # pass, and chain passes are rare while vcm passes win, so judged at the current K the
+        # chains could never earn back the K that makes them pay (the attic at 32x32: 4.9x at
+        # K = 1 in its first passes, 1.1x at K = 8).
+        chain = min((v_c / kk + v_p / steps) * self.work(effort, kk, steps)[0] for kk in range(1, most_k + 1))
+        vcm = (v_c + v_u / self.n_light) * self.work(effort, 1, steps)[1]
+        if not vcm > 0.0 or not math.isfinite(chain):
+            return None
+        return chain / vcm
+
+    def work(self, effort, k: int, steps: int, step_work: float = CHAIN_STEP_WORK) -> tuple[float, float]:
+        """(a chain pass's work with K camera subpaths per pixel, a vcm pass's), in the effort
+        balance's units, from the chain passes' counts so far."""
+        camera_work = CAMERA_WORK_WEIGHT * effort.sum_camera_work / effort.sum_camera_paths   # per K
+        per_subpath = self.light_work / self.traced
+        merges = DEPOSIT_WORK * self.merges_per_k / self.traced            # per light subpath, per unit K
+        traced_per_step = self.traced / self.steps
+        chain_work = k * camera_work + steps * (traced_per_step * (per_subpath + merges * k) + step_work)
+        vcm_work = camera_work + self.n_light * (per_subpath + merges)
+        return chain_work, vcm_work
+
+    def stats(self) -> dict:
+        return {"chain_passes": self.chain_passes, "vcm_passes": self.vcm_passes,
+                "predicted_chain_over_vcm": self.ratio}
