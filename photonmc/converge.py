@@ -73,7 +73,7 @@ class _Run:
             if reference.shape[:2] != (h, w):
                 raise PhotonmcError(f"reference is {reference.shape[1]}x{reference.shape[0]} but the scene renders "
                                     f"{w}x{h} (set the resolution with -D, e.g. -D res={reference.shape[1]})")
-            self.p.method.iterate()          # compiles every kernel
+            self.p.method.warm_up()          # compiles every kernel
             self.p.method.reset()
         except BaseException:
             self.p.release()

@@ -119,6 +119,22 @@ def test_vcm_passes_where_the_chains_do_not_pay(write_scene):
     assert off.stats["passes"]["chain_passes"] == 12 and off.stats["passes"]["vcm_passes"] == 0
 
 
+def test_warm_up_compiles_the_vcm_pass_and_reset_forgets_it():
+    """warm_up() (what converge runs before it resets and starts its clock) makes a vcm pass
+    too, so that its kernels do not compile mid-measurement (0.6-1.5 s at 64x64 with a cold
+    cache); after reset() the render is the one a fresh method makes, vcm passes included."""
+    scene = load_scene(SCENES / "mesh-room" / "scene.xml", {"res": 16})
+    fresh = render(scene, 12, seed=4)
+    p = prepare(scene, method="mbe", seed=4)
+    p.method.warm_up()
+    assert p.method.independent.vertices_last > 0
+    p.method.reset()
+    r = run(p, Budget(iterations=12), quiet=True)
+    p.release()
+    assert r.stats["passes"]["vcm_passes"] == fresh.stats["passes"]["vcm_passes"] > 0
+    assert np.array_equal(r.image, fresh.image)
+
+
 def test_chain_passes_kept_where_light_subpaths_rarely_contribute():
     """Where few light subpaths reach what the camera sees (the held-out closet, lit through
     the gap under its door, 32x32) the chain passes are predicted to remove more error per

@@ -143,7 +143,7 @@ def _iteration_times(method, iterations, res):
     scene = load_scene(default_scene_path(), {"res": res})
     p = prepare(scene, method=method)
     m = p.method
-    m.iterate()                                           # compile
+    m.warm_up()                                           # compile
     m.reset()
     times = []
     for _ in range(iterations):

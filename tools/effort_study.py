@@ -51,7 +51,7 @@ def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, 
     p = job.prepare()
     try:
         m = p.method
-        m.iterate()
+        m.warm_up()
         m.reset()
         t0 = time.perf_counter()
         while time.perf_counter() - t0 < seconds:

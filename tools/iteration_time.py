@@ -32,7 +32,7 @@ def main():
             options=options, seed=args.seed).prepare()
     try:
         m = p.method
-        m.iterate()
+        m.warm_up()
         m.reset()
         t0 = time.perf_counter()
         while time.perf_counter() - t0 < args.seconds:

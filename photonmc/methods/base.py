@@ -70,6 +70,12 @@ class Method:
     def _iterate(self) -> None:
         raise NotImplementedError
 
+    def warm_up(self) -> None:
+        """Compile what the method's iterations may launch (an iteration; a method whose
+        passes come in kinds compiles each), before a reset() that forgets the work; used to
+        keep compilation out of measured time."""
+        self.iterate()
+
     def image(self) -> np.ndarray:
         """Current estimate, (H, W, 3) float64 linear radiance."""
         raise NotImplementedError
