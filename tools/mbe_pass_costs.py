@@ -33,7 +33,6 @@ def main():
     from photonmc import runtime
     from photonmc.loop import Job
     from photonmc.methods import pass_choice
-    from photonmc.methods.effort import DEPOSIT_WORK
     runtime.init("cpu")
     params = dict(d.split("=", 1) for d in args.defines)
     params.setdefault("res", "64")
@@ -54,25 +53,20 @@ def main():
             times[name].append((time.perf_counter() - t) / args.iterations)
     ratio = np.asarray(times["mbe"]) / np.asarray(times["vcm"])
     m = mbe.method
-    pc, effort = m.pass_choice, m.effort
     steps = float(np.mean([s for s, _ in passes]))
     k = float(np.mean([kk for _, kk in passes]))
-    camera = effort.sum_camera_work / effort.sum_camera_paths
-    per_subpath = pc.light_work / pc.traced
-    merges = DEPOSIT_WORK * pc.merges_per_k / pc.traced
-    chain_camera, vcm_camera = k * camera, camera
-    chain_light = steps * pc.traced / pc.steps * (per_subpath + merges * k)
-    vcm_light = m.n_light * (per_subpath + merges)
-    weight, step_work = pass_choice.CAMERA_WORK_WEIGHT, pass_choice.CHAIN_STEP_WORK
+    counted = m.pass_choice.work_parts(m.effort, k, steps)
+    chain_camera, chain_light = counted["chain_camera"], counted["chain_light"]
+    vcm_camera, vcm_light = counted["vcm_camera"], counted["vcm_light"]
+    fitted_chain, fitted_vcm = m.pass_choice.work(m.effort, k, steps)
     print(json.dumps({
         "scene": args.scene, "params": params,
         "ms_per_iteration": {name: 1000 * float(np.median(t)) for name, t in times.items()},
         "measured_ratio": float(ratio.mean()), "measured_ratio_se": float(ratio.std() / np.sqrt(len(ratio))),
         "mean_camera_paths": k, "mean_chain_steps": steps,
-        "counted": {"chain_camera": chain_camera, "chain_light": chain_light, "vcm_camera": vcm_camera,
-                    "vcm_light": vcm_light},
+        "counted": counted,
         "predicted_full_camera_weight": (chain_camera + chain_light) / (vcm_camera + vcm_light),
-        "predicted_fitted": (weight * chain_camera + chain_light + step_work * steps) / (weight * vcm_camera + vcm_light),
+        "predicted_fitted": fitted_chain / fitted_vcm,
     }))
     vcm.release()
     mbe.release()

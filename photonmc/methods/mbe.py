@@ -306,7 +306,7 @@ class Mbe(Vcm):
         # Steers K with auto; stats. V_c untrimmed: see EffortBalance.shares.
         self.effort = EffortBalance(self.n_pixels, self.n_light, self.alpha, trim_camera=False)
         self.light_work_last = np.zeros(4)      # light_counters after the last pass
-        self.pass_choice = PassChoice(self.n_pixels, self.n_light, self.independent is not None)
+        self.pass_choice = PassChoice(self.n_light, self.independent is not None)
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
         self.pre_scale_host = np.ones(self.n_levels, np.float32)   # pre_scale's value, read without a kernel
         self.b_mis_host = np.ones(self.n_levels, np.float32)       # b_mis's, likewise
@@ -417,11 +417,10 @@ class Mbe(Vcm):
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * steps / np.maximum(recorded, 1e-300), 0.0)
         # The light side: beta x the uniform proposals' estimate + (1 - beta) x the chains'.
-        frame_scales, sum_scales, uniform_halves, beta = self._pass_scales(steps, b, scale, tallies)
+        frame_scales, sum_scales, uniform_halves, uniform_counts, beta = self._pass_scales(steps, b, scale, tallies)
         sums = self._end_pass(*frame_scales, *sum_scales, self.relative_balance,
                               max(self.film.film.samples_per_pixel, 0))
         self.film.count_flushed()
-        uniform_counts = [tallies["uniform_per_chain"][parity::2].sum() for parity in (0, 1)]
         self._observe_effort(steps, k, n, sums, beta, uniform_halves, uniform_counts, tallies["extra"][0])
         # The next pass's MIS normalisations, level scales and mutation sizes stay on the host
         # until the next _camera_side writes them (one launch less per iteration).
@@ -440,7 +439,8 @@ class Mbe(Vcm):
     def _pass_scales(self, steps: int, b, scale, tallies):
         """The pass's scales: (the frame's: chain levels 0 and 1 and the uniform proposals'),
         (the effort sums': the same in radiance, then each ladder parity's half alone, for
-        levels 0, 1 and the uniform proposals), the halves' uniform scales, beta. Each half is
+        levels 0, 1 and the uniform proposals), the halves' uniform scales and uniform
+        proposals, beta. Each half is
         scaled by its own recorded weight (or its own uniform proposals), so that it is an
         estimate of the whole light side by itself."""
         uniform_per_chain = tallies["uniform_per_chain"]
@@ -450,15 +450,16 @@ class Mbe(Vcm):
         frame = (*((1.0 - beta) * scale / self.pre_scale_host.astype(np.float64)), beta * uniform_scale)
         unit = self.film.unit / self.pre_scale_host.astype(np.float64)
         full = (1.0 - beta) * scale * unit
-        halves, uniform_halves = [], []
+        halves, uniform_halves, uniform_counts = [], [], []
         for parity in (0, 1):
             w = tallies["recorded_per_chain"][parity::2].sum(axis=0)
             halves.append(np.where(w > 0, b * steps / np.maximum(w, 1e-300), 0.0) * unit)
             n_u = float(uniform_per_chain[parity::2].sum())
+            uniform_counts.append(n_u)
             uniform_halves.append(steps / n_u * self.film.unit if n_u > 0 else 0.0)
         full_uniform = beta * uniform_scale * self.film.unit
         sums = (*full, full_uniform, *halves[0], uniform_halves[0], *halves[1], uniform_halves[1])
-        return frame, sums, uniform_halves, beta
+        return frame, sums, uniform_halves, uniform_counts, beta
 
     def _observe_effort(self, steps: int, k: int, vertices: int, sums, beta: float, uniform_halves, uniform_counts,
                         light_counters):
@@ -485,11 +486,10 @@ class Mbe(Vcm):
         n_subpaths = k * self.n_pixels
         self.effort.observe(steps, sums[0] / self.n_pixels, v_p_times_n, self.radius ** 2,
                             n_subpaths + 3.0 * vertices, segments + rays, camera_paths=k, deposits=merges)
-        n_u = [float(c) for c in uniform_counts]
         uniform_variance = None
-        if min(n_u) > 0:
+        if min(uniform_counts) > 0:
             # one uniform proposal's variance: Var(U_even - U_odd) = V_u (1/n_even + 1/n_odd)
-            uniform_variance = s_uniform / self.n_pixels / (1.0 / n_u[0] + 1.0 / n_u[1])
+            uniform_variance = s_uniform / self.n_pixels / (1.0 / uniform_counts[0] + 1.0 / uniform_counts[1])
         self.pass_choice.observe_chain_pass(steps, k, traced, segments + rays, merges, uniform_variance,
                                             self.radius ** 2)
         if self.camera_paths_auto:

@@ -51,8 +51,8 @@ MIN_CHAIN_PASSES = 4     # chain passes measured before the first vcm pass
 
 
 class PassChoice:
-    def __init__(self, n_pixels: int, n_light: int, enabled: bool):
-        self.n_pixels, self.n_light, self.enabled = n_pixels, int(n_light), bool(enabled)
+    def __init__(self, n_light: int, enabled: bool):
+        self.n_light, self.enabled = int(n_light), bool(enabled)
         self.uniform_r2_sum = 0.0       # V_u x r^2 summed over chain passes (V_u grows as 1/r^2)
         self.uniform_passes = 0
         self.traced = 0.0               # light subpaths traced by chain passes
@@ -109,16 +109,23 @@ class PassChoice:
             return None
         return chain / vcm
 
-    def work(self, effort, k: int, steps: int, step_work: float = CHAIN_STEP_WORK) -> tuple[float, float]:
-        """(a chain pass's work with K camera subpaths per pixel, a vcm pass's), in the effort
-        balance's units, from the chain passes' counts so far."""
-        camera_work = CAMERA_WORK_WEIGHT * effort.sum_camera_work / effort.sum_camera_paths   # per K
+    def work_parts(self, effort, k: int, steps: int) -> dict:
+        """The counted work of a chain pass with K camera subpaths per pixel and of a vcm pass,
+        camera and light side apart, in the effort balance's units, from the chain passes'
+        counts so far (tools/mbe_pass_costs.py sets them against measured time)."""
+        camera = effort.sum_camera_work / effort.sum_camera_paths          # per camera subpath per pixel
         per_subpath = self.light_work / self.traced
         merges = DEPOSIT_WORK * self.merges_per_k / self.traced            # per light subpath, per unit K
-        traced_per_step = self.traced / self.steps
-        chain_work = k * camera_work + steps * (traced_per_step * (per_subpath + merges * k) + step_work)
-        vcm_work = camera_work + self.n_light * (per_subpath + merges)
-        return chain_work, vcm_work
+        return {"chain_camera": k * camera,
+                "chain_light": steps * self.traced / self.steps * (per_subpath + merges * k),
+                "vcm_camera": camera, "vcm_light": self.n_light * (per_subpath + merges)}
+
+    def work(self, effort, k: int, steps: int) -> tuple[float, float]:
+        """(a chain pass's work with K camera subpaths per pixel, a vcm pass's) in the fitted
+        cost model."""
+        w = self.work_parts(effort, k, steps)
+        return (CAMERA_WORK_WEIGHT * w["chain_camera"] + w["chain_light"] + CHAIN_STEP_WORK * steps,
+                CAMERA_WORK_WEIGHT * w["vcm_camera"] + w["vcm_light"])
 
     def stats(self) -> dict:
         return {"chain_passes": self.chain_passes, "vcm_passes": self.vcm_passes,
