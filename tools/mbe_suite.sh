@@ -19,3 +19,4 @@ run scenes/light-gap/scene.xml tests/refs/light-gap-closeup-64.exr light-gap-clo
 run tools/heldout/closet-door.xml tools/heldout/closet-door-64.exr closet-door -D res=64
 run tools/heldout/mirror-glass-room.xml tools/heldout/mirror-glass-room-64.exr mirror-glass-room -D res=64
 run tools/heldout/reading-nook.xml tools/heldout/reading-nook-64.exr reading-nook -D res=64
+run tools/heldout/glass-counter.xml tools/heldout/glass-counter-64.exr glass-counter -D res=64
