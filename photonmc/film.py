@@ -147,3 +147,63 @@ class SplatFilm:
 
     def dropped(self) -> int:
         return int(self.nonfinite[None]) + self.film.dropped()
+
+
+@data_oriented
+class FilmSnapshots:
+    """Copies of a Film's sums taken between passes: the variance of one pass, measured from
+    two consecutive independent passes, and the passes taken back out of the film again
+    (mbe's measured vcm passes, methods/pass_choice.py). 7 doubles per pixel."""
+
+    def __init__(self, film: Film):
+        self.film = film
+        h, w = film.height, film.width
+        self.fields = FieldGroup("film-snapshots")
+        self.sum = self.fields.vector(3, ti.f64, (2, h, w))     # before the pair, after its first pass
+        self.sum_sq = self.fields.scalar(ti.f64, (h, w))        # before the pair
+        self.fields.finalize()
+        self.samples_before = 0
+
+    def release(self):
+        self.fields.release()
+
+    def take(self, slot: int):
+        """Slot 0 before the first of two passes (with the squares and the sample count, so
+        that both passes can be taken back out), slot 1 between them."""
+        if slot == 0:
+            self.samples_before = self.film.samples_per_pixel
+        self._take(slot)
+
+    @ti.kernel
+    def _take(self, slot: ti.i32):
+        ti.loop_config(serialize=ti.static(serial_loop(self.film.width * self.film.height)))
+        for y, x in ti.ndrange(self.film.height, self.film.width):
+            self.sum[slot, y, x] = self.film.sum[y, x]
+            if slot == 0:
+                self.sum_sq[y, x] = self.film.sum_sq[y, x]
+
+    @ti.kernel
+    def pair_spread(self) -> ti.f64:
+        """After the second pass: the mean over pixels of (e_1 - e_2)^2 / 2 in luminance, e_1
+        and e_2 the two passes' estimates, an unbiased estimate of one pass's variance (the
+        mean over pixels) where the passes are independent. Summed in a fixed order."""
+        y_weights = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
+        total = ti.f64(0.0)
+        ti.loop_config(serialize=True)
+        for i in range(self.film.width * self.film.height):
+            y, x = i // self.film.width, i % self.film.width
+            d = (2.0 * self.sum[1, y, x] - self.sum[0, y, x] - self.film.sum[y, x]).dot(y_weights)
+            total += d * d
+        return total / (2.0 * self.film.width * self.film.height)
+
+    def restore(self):
+        """Take the passes since take(0) back out of the film."""
+        self._restore()
+        self.film.samples_per_pixel = self.samples_before
+
+    @ti.kernel
+    def _restore(self):
+        ti.loop_config(serialize=ti.static(serial_loop(self.film.width * self.film.height)))
+        for y, x in ti.ndrange(self.film.height, self.film.width):
+            self.film.sum[y, x] = self.sum[0, y, x]
+            self.film.sum_sq[y, x] = self.sum_sq[y, x]
