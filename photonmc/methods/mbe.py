@@ -80,7 +80,6 @@ from .base import MethodSettings
 from .effort import EffortBalance, UniformWeight, uniform_weight_option
 from .guided import LADDER_BURN_IN
 from .pass_choice import PassChoice
-from ..film import FilmSnapshots
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 from ..taichi_frontend import data_oriented
 
@@ -153,9 +152,6 @@ CAMERA_SUBPATH_BUDGET = 1 << 20
 # 16 at up to 128x128, 8 at 256x256 (the store then holds 2^21 vertices, 0.26 GB).
 MAX_AUTO_CAMERA_PATHS = 16
 AUTO_SUBPATH_BUDGET = 1 << 19
-# Random-number index of mbe's measured vcm passes (plus twice the pairs so far, plus 0 or 1):
-# beyond any iteration's, so that they are independent of every pass the film keeps.
-MEASURED_PASS_INDEX = 1 << 29
 SPLAT_LIST_CAPACITY = 1024   # entries kept per splat list (16 bytes each); longer lists are traced again
 
 
@@ -170,7 +166,7 @@ class Mbe(Vcm):
                "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True,
                "balance": "mse", "uniform_weight": "auto", "vcm_passes": "auto"}
     # The camera vertices live for one iteration; the chain model is bound to their store.
-    TRANSIENT = ("store", "grid", "chain_model", "_models", "film_snapshots")
+    TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
 
     def __init__(self, dscene, settings):
@@ -255,7 +251,6 @@ class Mbe(Vcm):
                 "radius_pixels": opts["radius_pixels"]}))
             self.independent.film.release()
             self.independent.film = self.film
-            self.film_snapshots = FilmSnapshots(self.film.film)
         self._reset_chains()
 
     @staticmethod
@@ -291,7 +286,6 @@ class Mbe(Vcm):
         if self.independent is not None:
             self.independent.film = None        # this method's film, released below
             self.independent.release()
-            self.film_snapshots.release()
         super().release()
 
     def _reset(self):
@@ -347,8 +341,6 @@ class Mbe(Vcm):
 
     def _iterate(self):
         it = self.iteration_index
-        if self.pass_choice.measure_due():
-            self._measured_vcm_pair()
         if self.pass_choice.next_is_vcm(self.effort, self.camera_paths, self.max_camera_paths, self.steps_last,
                                         self.radius ** 2):
             self._vcm_pass(it)
@@ -362,8 +354,6 @@ class Mbe(Vcm):
         self.iterate()
         if self.independent is not None:
             self._vcm_pass(self.iteration_index)
-            snapshots = self.film_snapshots
-            snapshots.take(0), snapshots.take(1), snapshots.pair_spread(), snapshots.restore()
 
     def _vcm_pass(self, it: int):
         """A pass of vcm's (--light-paths independent light subpaths, one camera subpath per
@@ -373,30 +363,6 @@ class Mbe(Vcm):
         self.radius = self.independent.radius
         self.camera_paths_traced += 1
         self.work_done += self.n_light + self.n_pixels
-
-    def _measured_vcm_pair(self):
-        """Two vcm passes, their spread measured (methods/pass_choice.py): kept in the film,
-        as vcm passes of this method's next camera subpaths, while vcm passes win; taken back
-        out of it while chain passes win. Their random numbers are drawn for indices no
-        iteration uses."""
-        keep = self.pass_choice.keep_measured()
-        snapshots = self.film_snapshots
-        snapshots.take(0)
-        for j in range(2):
-            self.independent.r1 = self.r1
-            self.independent.vcm_pass(MEASURED_PASS_INDEX + 2 * self.pass_choice.measured_pairs + j,
-                                      self.camera_paths_traced)
-            if keep:
-                self.camera_paths_traced += 1
-                self.radius = self.independent.radius
-            if j == 0:
-                snapshots.take(1)
-        spread = snapshots.pair_spread()
-        if not keep:
-            snapshots.restore()
-        self.work_done += 2 * (self.n_light + self.n_pixels)
-        self.pass_choice.observe_measured_pair(self.effort, spread, self.independent.radius ** 2, self.steps_last,
-                                               keep)
 
     def _chain_pass(self, it: int):
         k = self.camera_paths
@@ -524,7 +490,7 @@ class Mbe(Vcm):
         if min(uniform_counts) > 0:
             # one uniform proposal's variance: Var(U_even - U_odd) = V_u (1/n_even + 1/n_odd)
             uniform_variance = s_uniform / self.n_pixels / (1.0 / uniform_counts[0] + 1.0 / uniform_counts[1])
-        self.pass_choice.observe_chain_pass(self.effort, steps, k, traced, segments + rays, merges, uniform_variance,
+        self.pass_choice.observe_chain_pass(steps, k, traced, segments + rays, merges, uniform_variance,
                                             self.radius ** 2)
         if self.camera_paths_auto:
             self.camera_paths = self.effort.next_camera_paths(steps, self.max_camera_paths)

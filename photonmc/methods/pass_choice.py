@@ -48,16 +48,6 @@ CHAIN_STEP_WORK = 3.0
 # each 7x a vcm pass's cost at K = 5.)
 CHAIN_WORK_SHARE = 0.1
 MIN_CHAIN_PASSES = 4     # chain passes measured before the first vcm pass
-# A vcm pass's camera side is measured, not taken from the chain passes' V_c: pairs of vcm
-# passes (their spread is 2x one pass's variance), with this share of the work, taken back
-# out of the film while chain passes win (a vcm pass's variance at a chain pass's weight in
-# the film would cost more than it tells where chain passes are dear) and kept while vcm
-# passes win. The chain passes' V_c is V_c at their K, with MIS weights that count the
-# camera techniques K times: in the held-out cellar at K = 2 it was 0.0103 per pixel and
-# pass against 0.0074 measured for vcm's camera side, so the rule kept chain passes (ratio
-# 0.83) where vcm passes were 1.18x better (docs/mbe.md, "vcm passes measured").
-MEASURED_WORK_SHARE = 0.03
-MIN_MEASURED_PAIRS = 4   # pairs measured before they replace the chain passes' V_c
 
 
 class PassChoice:
@@ -73,12 +63,8 @@ class PassChoice:
         self.vcm_passes = 0
         self.vcm_work_since_chain = 0.0  # work of the vcm passes since the last chain pass
         self.ratio = None               # last predicted (chain variance x work) / (vcm's)
-        self.total_work = 0.0           # all passes', measured pairs' included (fitted cost model)
-        self.measured_work = 0.0        # the measured pairs'
-        self.measured_pairs = 0
-        self.measured_camera_sum = 0.0  # vcm's camera side per pass, summed over measured pairs
 
-    def observe_chain_pass(self, effort, steps: int, k: int, traced: float, light_work: float, merges: float,
+    def observe_chain_pass(self, steps: int, k: int, traced: float, light_work: float, merges: float,
                            uniform_variance: float | None, radius_sq: float) -> None:
         """A chain pass: its steps, K, light subpaths traced, their segments and shadow rays,
         merge candidates, and the variance of one uniform proposal's splat list (mean over
@@ -92,32 +78,6 @@ class PassChoice:
         if uniform_variance is not None:
             self.uniform_r2_sum += uniform_variance * radius_sq
             self.uniform_passes += 1
-        if self.traced > 0 and effort.sum_camera_paths > 0:
-            self.total_work += self.work(effort, k, steps)[0]
-
-    def measure_due(self) -> bool:
-        """Whether a pair of vcm passes should be measured before the next pass."""
-        return (self.enabled and self.chain_passes >= MIN_CHAIN_PASSES and self.uniform_passes > 0
-                and self.measured_work <= MEASURED_WORK_SHARE * self.total_work)
-
-    def keep_measured(self) -> bool:
-        """Whether the measured pair stays in the film: while vcm passes win."""
-        return self.ratio is not None and self.ratio > 1.0
-
-    def observe_measured_pair(self, effort, spread: float, radius_sq: float, steps: int, kept: bool) -> None:
-        """A measured pair of vcm passes at squared radius radius_sq: `spread` the mean over
-        pixels of (e_1 - e_2)^2 / 2 (one vcm pass's variance). Its camera side is what remains
-        without the light side the uniform proposals measure (V_u / N_L, which the test of
-        independent light subpaths under fixed camera subpaths confirmed within 5 % in the
-        cellar: docs/mbe.md)."""
-        vcm_work = 2.0 * self.work(effort, 1, steps)[1]
-        self.measured_work += vcm_work
-        self.total_work += vcm_work
-        self.measured_pairs += 1
-        self.measured_camera_sum += spread - self.uniform_r2_sum / self.uniform_passes / radius_sq / self.n_light
-        if kept:
-            self.vcm_passes += 2
-            self.vcm_work_since_chain += vcm_work
 
     def next_is_vcm(self, effort, k: int, most_k: int, steps: int, radius_sq: float) -> bool:
         """Whether the next pass should be a vcm pass, against a chain pass of `steps` steps
@@ -130,7 +90,6 @@ class PassChoice:
             return False
         self.vcm_passes += 1
         self.vcm_work_since_chain += vcm_work
-        self.total_work += vcm_work
         return True
 
     def _ratio(self, effort, most_k: int, steps: int, radius_sq: float) -> float | None:
@@ -140,14 +99,12 @@ class PassChoice:
             return None
         v_c, v_p = max(shares[0], 0.0), max(shares[1], 0.0)
         v_u = self.uniform_r2_sum / self.uniform_passes / radius_sq
-        v_c_vcm = v_c if self.measured_pairs < MIN_MEASURED_PAIRS else \
-            max(self.measured_camera_sum / self.measured_pairs, 0.0)
         # The chain pass at its best K: the balance moves K by at most a factor 2 per chain
         # pass, and chain passes are rare while vcm passes win, so judged at the current K the
         # chains could never earn back the K that makes them pay (the attic at 32x32: 4.9x at
         # K = 1 in its first passes, 1.1x at K = 8).
         chain = min((v_c / kk + v_p / steps) * self.work(effort, kk, steps)[0] for kk in range(1, most_k + 1))
-        vcm = (v_c_vcm + v_u / self.n_light) * self.work(effort, 1, steps)[1]
+        vcm = (v_c + v_u / self.n_light) * self.work(effort, 1, steps)[1]
         if not vcm > 0.0 or not math.isfinite(chain):
             return None
         return chain / vcm
@@ -172,7 +129,4 @@ class PassChoice:
 
     def stats(self) -> dict:
         return {"chain_passes": self.chain_passes, "vcm_passes": self.vcm_passes,
-                "predicted_chain_over_vcm": self.ratio, "measured_vcm_pairs": self.measured_pairs,
-                "measured_vcm_camera_variance": (self.measured_camera_sum / self.measured_pairs
-                                                 if self.measured_pairs else None),
-                "measured_work_share": self.measured_work / self.total_work if self.total_work > 0 else 0.0}
+                "predicted_chain_over_vcm": self.ratio}
