@@ -20,3 +20,4 @@ run tools/heldout/closet-door.xml tools/heldout/closet-door-64.exr closet-door -
 run tools/heldout/mirror-glass-room.xml tools/heldout/mirror-glass-room-64.exr mirror-glass-room -D res=64
 run tools/heldout/reading-nook.xml tools/heldout/reading-nook-64.exr reading-nook -D res=64
 run tools/heldout/glass-counter.xml tools/heldout/glass-counter-64.exr glass-counter -D res=64
+run tools/heldout/cellar-hatch.xml tools/heldout/cellar-hatch-64.exr cellar-hatch -D res=64
