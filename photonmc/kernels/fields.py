@@ -33,6 +33,11 @@ class _Allocation:
 
     def destroy(self):
         if self.tree is not None:
+            # Taichi checks the matrix fields declared since its last compile at the next
+            # compile; a destroyed tree's members would be read dangling there (CI saw
+            # "Members of the following field have different shapes"). Syncing runs that
+            # check now, while the fields are alive, and empties Taichi's list of them.
+            ti.sync()
             self.tree.destroy()
             self.tree = None
 
