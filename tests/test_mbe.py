@@ -115,8 +115,59 @@ def test_vcm_passes_where_the_chains_do_not_pay(write_scene):
     again = render(scene, 40, seed=2, max_depth=3, camera_paths=2)
     assert np.array_equal(again.image, image.astype(again.image.dtype))
     assert again.stats["passes"]["vcm_passes"] == kinds.count("v")
+    # chain passes of K = 2 only: V_u says nothing of a vcm pass's light subpaths, all are traced
+    assert again.stats["passes"]["vcm_pass_light_paths_mean"] == m.n_light
     off = render(scene, 12, seed=2, max_depth=3, vcm_passes="off")
     assert off.stats["passes"]["chain_passes"] == 12 and off.stats["passes"]["vcm_passes"] == 0
+
+
+class _KnownEffort:
+    """The effort balance's view that PassChoice reads, set by hand."""
+    def __init__(self, v_c, v_p, camera_work):
+        self.v_c, self.v_p = v_c, v_p
+        self.sum_camera_work, self.sum_camera_paths = camera_work, 1.0
+
+    def shares(self):
+        return self.v_c, self.v_p
+
+
+@pytest.mark.parametrize("v_c,v_u,k,fewer", [(0.01, 2.0, 1, True), (0.01, 400.0, 1, False), (1.0, 1e-3, 1, True),
+                                             (0.0, 2.0, 1, False), (0.01, 2.0, 2, False)])
+def test_vcm_passes_trace_the_light_subpaths_that_minimise_variance_times_work(v_c, v_u, k, fewer):
+    """A vcm pass's light subpaths N minimise (V_c + V_u / N) x work(N) in the rule's own
+    model (methods/pass_choice.py), within [--light-paths / 16, --light-paths]: fewer where
+    the camera side carries the error, all of them where the light side does, and all of
+    them where no camera-side error is measured or where the chain passes measured V_u at K > 1
+    only (it does not describe a vcm pass's light subpaths there)."""
+    from photonmc.methods.pass_choice import MAX_FEWER_LIGHT_PATHS, MIN_PASSES_FOR_BALANCE, PassChoice
+    n_light, steps, r2 = 4096, 4096, 0.01
+    choice = PassChoice(n_light, True)
+    for _ in range(MIN_PASSES_FOR_BALANCE):
+        choice.observe_chain_pass(steps, k, traced=steps, light_work=3.0 * steps, merges=0.5 * k * steps,
+                                  uniform_variance=v_u, radius_sq=r2)
+    effort = _KnownEffort(v_c, 0.001, camera_work=20.0 * n_light)
+    choice.next_is_vcm(effort, 2, 8, steps, r2)
+    chosen = choice.vcm_light_paths
+    lo = n_light // MAX_FEWER_LIGHT_PATHS
+    assert lo <= chosen <= n_light and (chosen < n_light) == fewer
+    if v_c > 0 and k == 1:
+        cost = lambda n: (v_c + v_u / n) * choice.work(effort, 1, steps, n)[1]
+        best = min(range(lo, n_light + 1), key=cost)
+        assert cost(chosen) <= cost(best) * (1 + 1e-6), (chosen, best)
+
+
+def test_balanced_vcm_passes_still_reach_the_furnace_radiance(write_scene):
+    """With chain passes of one camera subpath per pixel V_u describes a vcm pass's light
+    subpaths, and in the furnace at 16x16 the balance traces fewer of them than
+    --light-paths (the camera side carries most of a pass's variance there); the image still
+    reaches the analytic radiance."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    r = render(scene, 200, seed=2, max_depth=3, camera_paths=1)
+    passes = r.stats["passes"]
+    print(passes)
+    assert passes["vcm_passes"] > 100 and passes["vcm_pass_light_paths_mean"] < 0.95 * 256
+    lum, expected = luminance(r.image), furnace_expectation(3)
+    assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected, lum.mean()
 
 
 def test_warm_up_compiles_the_vcm_pass_and_reset_forgets_it():

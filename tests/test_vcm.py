@@ -144,6 +144,23 @@ def test_growing_the_vertex_store_changes_nothing(write_scene):
     assert np.array_equal(small.image, large.image)
 
 
+def test_a_pass_with_fewer_light_subpaths_is_the_pass_of_a_vcm_with_that_many():
+    """vcm_pass(n_light=N) on a store sized for more (mbe's vcm passes choose N,
+    methods/pass_choice.py) renders what a vcm with --light-paths N renders: the same light
+    subpaths, the pairing modulo N, the MIS counts of N."""
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 16})
+    images = []
+    for light_paths, per_pass in ((256, 64), (64, None)):
+        p = prepare(scene, method="vcm", seed=3, options={"light_paths": light_paths})
+        for it in range(3):
+            p.method.vcm_pass(it, it, per_pass)
+        images.append(p.method.image())
+        with pytest.raises(ValueError, match="light subpaths"):
+            p.method.vcm_pass(3, 3, light_paths + 1)
+        p.release()
+    assert images[0].mean() > 0 and np.array_equal(images[0], images[1])
+
+
 def test_seed_determinism():
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 16})
     a = render(scene, 3, seed=3).image

@@ -356,13 +356,15 @@ class Mbe(Vcm):
             self._vcm_pass(self.iteration_index)
 
     def _vcm_pass(self, it: int):
-        """A pass of vcm's (--light-paths independent light subpaths, one camera subpath per
-        pixel) into this film, with the radius of this method's next camera subpath."""
+        """A pass of vcm's (independent light subpaths, as many as the pass choice's balance
+        gives, at most --light-paths; one camera subpath per pixel) into this film, with the
+        radius of this method's next camera subpath."""
         self.independent.r1 = self.r1
-        self.independent.vcm_pass(it, self.camera_paths_traced)
+        n_light = self.pass_choice.vcm_light_paths
+        self.independent.vcm_pass(it, self.camera_paths_traced, n_light)
         self.radius = self.independent.radius
         self.camera_paths_traced += 1
-        self.work_done += self.n_light + self.n_pixels
+        self.work_done += n_light + self.n_pixels
 
     def _chain_pass(self, it: int):
         k = self.camera_paths

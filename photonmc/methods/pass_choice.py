@@ -15,7 +15,10 @@ V_c the camera side's variance per camera subpath and V_p the chains' light side
 (the effort balance's, methods/effort.py), V_u the variance of one uniform proposal's splat
 list (the pass's uniform proposals, even ladders against odd: the light side of independent
 light subpaths, which is what vcm traces), K the camera subpaths per pixel of a chain pass
-(at the K that minimises its product), n its chain steps, N_L --light-paths. Work is counted,
+(at the K that minimises its product), n its chain steps, N_L the vcm pass's light subpaths:
+those that minimise its product, within [--light-paths / 16, --light-paths] (the effort
+balance of methods/effort.py, for vcm's passes; docs/mbe.md, "Light subpaths of the vcm
+passes by the effort balance"). Work is counted,
 not timed, so that a seed gives one image: the effort balance's counts (rays, segments, merge
 candidates) in a cost model fitted to measured times (CAMERA_WORK_WEIGHT, CHAIN_STEP_WORK).
 While vcm passes win, chain passes still take CHAIN_WORK_SHARE of the work, so that the
@@ -48,6 +51,16 @@ CHAIN_STEP_WORK = 3.0
 # each 7x a vcm pass's cost at K = 5.)
 CHAIN_WORK_SHARE = 0.1
 MIN_CHAIN_PASSES = 4     # chain passes measured before the first vcm pass
+# A vcm pass traces between --light-paths / MAX_FEWER_LIGHT_PATHS and --light-paths light
+# subpaths (the store holds --light-paths'; fewer stand in where a pass's error is its camera side).
+MAX_FEWER_LIGHT_PATHS = 16
+# ... once this many chain passes of one camera subpath per pixel have measured V_u. At K > 1
+# V_u does not describe a vcm pass's light subpaths (they merge with K camera subpaths per
+# pixel under weights that count the camera-only techniques K times), and measured, it is
+# lower: balanced by it, the Cornell box (chain passes at K = 14) took vcm passes of 256
+# light subpaths, predicted 5x better than chain passes, and mbe went from 0.75x vcm's RMSE
+# to 0.90x (docs/mbe.md).
+MIN_PASSES_FOR_BALANCE = 16
 
 
 class PassChoice:
@@ -55,6 +68,8 @@ class PassChoice:
         self.n_light, self.enabled = int(n_light), bool(enabled)
         self.uniform_r2_sum = 0.0       # V_u x r^2 summed over chain passes (V_u grows as 1/r^2)
         self.uniform_passes = 0
+        self.uniform_r2_sum_k1 = 0.0    # the same, over chain passes of K = 1 only
+        self.uniform_passes_k1 = 0
         self.traced = 0.0               # light subpaths traced by chain passes
         self.steps = 0.0                # chain steps
         self.light_work = 0.0           # their segments and shadow rays
@@ -63,6 +78,8 @@ class PassChoice:
         self.vcm_passes = 0
         self.vcm_work_since_chain = 0.0  # work of the vcm passes since the last chain pass
         self.ratio = None               # last predicted (chain variance x work) / (vcm's)
+        self.vcm_light_paths = self.n_light   # light subpaths of the next vcm pass
+        self.vcm_light_paths_sum = 0.0  # over the vcm passes made
 
     def observe_chain_pass(self, steps: int, k: int, traced: float, light_work: float, merges: float,
                            uniform_variance: float | None, radius_sq: float) -> None:
@@ -78,6 +95,9 @@ class PassChoice:
         if uniform_variance is not None:
             self.uniform_r2_sum += uniform_variance * radius_sq
             self.uniform_passes += 1
+            if k == 1:
+                self.uniform_r2_sum_k1 += uniform_variance * radius_sq
+                self.uniform_passes_k1 += 1
 
     def next_is_vcm(self, effort, k: int, most_k: int, steps: int, radius_sq: float) -> bool:
         """Whether the next pass should be a vcm pass, against a chain pass of `steps` steps
@@ -85,11 +105,12 @@ class PassChoice:
         self.ratio = self._ratio(effort, most_k, steps, radius_sq)
         if not (self.enabled and self.ratio is not None and self.ratio > 1.0):
             return False
-        chain_work, vcm_work = self.work(effort, k, steps)
+        chain_work = self.work(effort, k, steps)[0]
         if self.vcm_work_since_chain * CHAIN_WORK_SHARE >= chain_work * (1.0 - CHAIN_WORK_SHARE):
             return False
         self.vcm_passes += 1
-        self.vcm_work_since_chain += vcm_work
+        self.vcm_light_paths_sum += self.vcm_light_paths
+        self.vcm_work_since_chain += self.work(effort, k, steps, self.vcm_light_paths)[1]
         return True
 
     def _ratio(self, effort, most_k: int, steps: int, radius_sq: float) -> float | None:
@@ -104,29 +125,51 @@ class PassChoice:
         # chains could never earn back the K that makes them pay (the attic at 32x32: 4.9x at
         # K = 1 in its first passes, 1.1x at K = 8).
         chain = min((v_c / kk + v_p / steps) * self.work(effort, kk, steps)[0] for kk in range(1, most_k + 1))
-        vcm = (v_c + v_u / self.n_light) * self.work(effort, 1, steps)[1]
+        self.vcm_light_paths = self.n_light
+        if self.uniform_passes_k1 >= MIN_PASSES_FOR_BALANCE:
+            v_u = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq
+            self.vcm_light_paths = self._balanced_light_paths(effort, steps, v_c, v_u)
+        vcm = (v_c + v_u / self.vcm_light_paths) * self.work(effort, 1, steps, self.vcm_light_paths)[1]
         if not vcm > 0.0 or not math.isfinite(chain):
             return None
         return chain / vcm
 
-    def work_parts(self, effort, k: int, steps: int) -> dict:
+    def _balanced_light_paths(self, effort, steps: int, v_c: float, v_u: float) -> int:
+        """The light subpaths N of a vcm pass that minimise (V_c + V_u / N) (C + N c): the
+        effort balance of methods/effort.py for vcm's passes, N* = sqrt(C V_u / (c V_c)), C
+        the pass's camera work and c a light subpath's, in the fitted cost model. Where a
+        pass's error is its camera side, fewer light subpaths cost less for the same variance
+        (the held-out cellar: vcm with a quarter of them has the same variance per pass at
+        0.77x the time, docs/mbe.md)."""
+        w = self.work_parts(effort, 1, steps, 1)
+        camera, light = CAMERA_WORK_WEIGHT * w["vcm_camera"], w["vcm_light"]
+        fewest = max(1, self.n_light // MAX_FEWER_LIGHT_PATHS)
+        if not (v_c > 0.0 and light > 0.0):
+            return self.n_light
+        best = math.sqrt(camera * v_u / (light * v_c))
+        return int(min(max(round(best), fewest), self.n_light))
+
+    def work_parts(self, effort, k: int, steps: int, n_light: int | None = None) -> dict:
         """The counted work of a chain pass with K camera subpaths per pixel and of a vcm pass,
         camera and light side apart, in the effort balance's units, from the chain passes'
-        counts so far (tools/mbe_pass_costs.py sets them against measured time)."""
+        counts so far (tools/mbe_pass_costs.py sets them against measured time); the vcm pass
+        with n_light light subpaths (--light-paths by default)."""
+        n_light = self.n_light if n_light is None else n_light
         camera = effort.sum_camera_work / effort.sum_camera_paths          # per camera subpath per pixel
         per_subpath = self.light_work / self.traced
         merges = DEPOSIT_WORK * self.merges_per_k / self.traced            # per light subpath, per unit K
         return {"chain_camera": k * camera,
                 "chain_light": steps * self.traced / self.steps * (per_subpath + merges * k),
-                "vcm_camera": camera, "vcm_light": self.n_light * (per_subpath + merges)}
+                "vcm_camera": camera, "vcm_light": n_light * (per_subpath + merges)}
 
-    def work(self, effort, k: int, steps: int) -> tuple[float, float]:
-        """(a chain pass's work with K camera subpaths per pixel, a vcm pass's) in the fitted
-        cost model."""
-        w = self.work_parts(effort, k, steps)
+    def work(self, effort, k: int, steps: int, n_light: int | None = None) -> tuple[float, float]:
+        """(a chain pass's work with K camera subpaths per pixel, a vcm pass's with n_light
+        light subpaths) in the fitted cost model."""
+        w = self.work_parts(effort, k, steps, n_light)
         return (CAMERA_WORK_WEIGHT * w["chain_camera"] + w["chain_light"] + CHAIN_STEP_WORK * steps,
                 CAMERA_WORK_WEIGHT * w["vcm_camera"] + w["vcm_light"])
 
     def stats(self) -> dict:
         return {"chain_passes": self.chain_passes, "vcm_passes": self.vcm_passes,
-                "predicted_chain_over_vcm": self.ratio}
+                "predicted_chain_over_vcm": self.ratio,
+                "vcm_pass_light_paths_mean": (self.vcm_light_paths_sum / self.vcm_passes if self.vcm_passes else None)}

@@ -94,6 +94,7 @@ class Vcm(Method):
         self.consts = f.vector(5, ti.f32, ())        # MisConstants of this iteration, then r^2
         self.first_hit = f.scalar(ti.f32, self.n_pixels)
         self.counters = f.scalar(ti.i64, 1)          # light subpaths that left a vertex
+        self.pass_light_paths = f.scalar(ti.i32, ())  # this pass's light subpaths (the pairing's modulus)
         f.finalize()
         self.fields = f
         radiance = dscene.scene.emitter_radiance
@@ -148,13 +149,18 @@ class Vcm(Method):
         self.vcm_pass(self.iteration_index, self.iteration_index)
         self.work_done += self.n_light + self.n_pixels
 
-    def vcm_pass(self, it: int, radius_index: int):
+    def vcm_pass(self, it: int, radius_index: int, n_light: int | None = None):
         """One iteration: random numbers drawn for index `it`, merging radius r_(radius_index)
-        (the same index for vcm; mbe's vcm passes index it by its camera subpaths)."""
+        (the same index for vcm; mbe's vcm passes index it by its camera subpaths), n_light
+        light subpaths (at most --light-paths, which sizes the store; mbe's vcm passes choose
+        theirs, methods/pass_choice.py)."""
+        n_light = self.n_light if n_light is None else int(n_light)
+        if not 1 <= n_light <= self.n_light:
+            raise ValueError(f"a vcm pass traces 1 to {self.n_light} light subpaths, not {n_light}")
         self.radius = self._radius_at(radius_index)
-        eta = PI * self.radius ** 2 * self.n_light
+        eta = PI * self.radius ** 2 * n_light
         # MisConstants and r^2, as scalars (a vector argument costs more host time)
-        consts = (eta if self.use_vm else 0.0, 1.0 / eta if self.use_vc else 0.0, float(self.n_light), 1.0,
+        consts = (eta if self.use_vm else 0.0, 1.0 / eta if self.use_vc else 0.0, float(n_light), 1.0,
                   self.radius ** 2)
         # The store and the grid are template arguments of the passes (a grown store compiles
         # them anew); without a store (light tracing only) any other object stands in. Two
@@ -163,8 +169,8 @@ class Vcm(Method):
         store = self.store if self.store is not None else self.fields
         grid = self.grid if self.grid is not None else self.fields
         while True:
-            n = int(self._light_pass(store, grid, *consts, self.seed_u32, it, self.n_light, self.max_light_segments,
-                                     self.radius, *self._index_serial(self.n_light)))
+            n = int(self._light_pass(store, grid, *consts, self.seed_u32, it, n_light, self.max_light_segments,
+                                     self.radius, *self._index_serial(n_light)))
             if self.store is None or n <= self.store.capacity:
                 break
             # Too many vertices to store: grow (recompiles the passes once) and redo the pass,
@@ -175,7 +181,7 @@ class Vcm(Method):
             store, grid = self.store, (self.grid if self.grid is not None else self.fields)
         if self.store is not None:
             self.vertices_last = n
-        self._camera_pass(store, grid, self.seed_u32, it, self.max_depth, 1.0 / (PI * self.radius ** 2 * self.n_light))
+        self._camera_pass(store, grid, self.seed_u32, it, self.max_depth, 1.0 / (PI * self.radius ** 2 * n_light))
         self.film.count_flushed()
 
     def _index_serial(self, n_paths: int) -> tuple[bool, bool]:
@@ -222,6 +228,7 @@ class Vcm(Method):
         subpaths traced, their vertices indexed (index_vertices), in one launch. Returns the
         vertices the pass tried to store (0 without a store)."""
         self.consts[None] = ti.Vector([vm_weight, vc_weight, light_paths, camera_only, r2])
+        self.pass_light_paths[None] = n_light
         if ti.static(isinstance(store, SubpathVertices)):
             store.clear_paths(n_light, serial_paths)
         for p in range(n_light):
@@ -347,7 +354,8 @@ class Vcm(Method):
                              state: ti.template(), c, max_depth: ti.i32):
         """Next-event estimation (s = 1) at camera vertex cv and its connections (s, t >= 2) to
         every vertex of the light subpath paired with this pixel (the one with the pixel's
-        index, as in SmallVCM: N_L = pixels by default), without cv's throughput. One loop
+        index modulo the pass's light subpaths, as in SmallVCM: N_L = pixels by default),
+        without cv's throughput. One loop
         (k = -1: next-event estimation) with one shadow-ray call site, because every inlined
         copy of the BVH traversal costs compile time (docs/performance.md, "Compile time");
         the same rays, random numbers and sums, in the same order, as one technique after the
@@ -355,7 +363,7 @@ class Vcm(Method):
         sc = self.dscene
         nee = vec3(0.0)
         total = vec3(0.0)
-        path = pixel % ti.static(self.n_light)
+        path = pixel % self.pass_light_paths[None]
         first = store.path_start[path]
         k0 = -1 if cv.length + 1 <= max_depth else 0
         for k in range(k0, store.path_count[path]):
