@@ -16,9 +16,10 @@ V_c the camera side's variance per camera subpath and V_p the chains' light side
 list (the pass's uniform proposals, even ladders against odd: the light side of independent
 light subpaths, which is what vcm traces), K the camera subpaths per pixel of a chain pass
 (at the K that minimises its product), n its chain steps, N_L the vcm pass's light subpaths:
-those that minimise its product, within [--light-paths / 16, --light-paths] (the effort
-balance of methods/effort.py, for vcm's passes; docs/mbe.md, "Light subpaths of the vcm
-passes by the effort balance"). Work is counted,
+--light-paths in the comparison; the vcm passes taken trace those that minimise their
+product, within [--light-paths / 16, --light-paths] (the effort balance of methods/effort.py,
+for vcm's passes; docs/mbe.md, "Light subpaths of the vcm passes by the effort balance").
+Work is counted,
 not timed, so that a seed gives one image: the effort balance's counts (rays, segments, merge
 candidates) in a cost model fitted to measured times (CAMERA_WORK_WEIGHT, CHAIN_STEP_WORK).
 While vcm passes win, chain passes still take CHAIN_WORK_SHARE of the work, so that the
@@ -125,11 +126,16 @@ class PassChoice:
         # chains could never earn back the K that makes them pay (the attic at 32x32: 4.9x at
         # K = 1 in its first passes, 1.1x at K = 8).
         chain = min((v_c / kk + v_p / steps) * self.work(effort, kk, steps)[0] for kk in range(1, most_k + 1))
+        # The kinds are compared at --light-paths: the cost model counts a vcm pass's
+        # connections as light work, though they grow with the pixels, not the light subpaths,
+        # so it makes a pass of fewer light subpaths look cheaper than it is (mesh-room at
+        # 1,400 of 4,096: 0.40x the time predicted, 0.75x measured), and judged there a vcm
+        # pass could win where chain passes do. The balance only sizes the vcm passes taken.
+        vcm = (v_c + v_u / self.n_light) * self.work(effort, 1, steps)[1]
         self.vcm_light_paths = self.n_light
         if self.uniform_passes_k1 >= MIN_PASSES_FOR_BALANCE:
-            v_u = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq
-            self.vcm_light_paths = self._balanced_light_paths(effort, steps, v_c, v_u)
-        vcm = (v_c + v_u / self.vcm_light_paths) * self.work(effort, 1, steps, self.vcm_light_paths)[1]
+            v_u1 = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq
+            self.vcm_light_paths = self._balanced_light_paths(effort, steps, v_c, v_u1)
         if not vcm > 0.0 or not math.isfinite(chain):
             return None
         return chain / vcm
@@ -140,7 +146,8 @@ class PassChoice:
         the pass's camera work and c a light subpath's, in the fitted cost model. Where a
         pass's error is its camera side, fewer light subpaths cost less for the same variance
         (the held-out cellar: vcm with a quarter of them has the same variance per pass at
-        0.77x the time, docs/mbe.md)."""
+        0.77x the time, docs/mbe.md). The model overstates what fewer light subpaths save
+        (_ratio), so N* errs low."""
         w = self.work_parts(effort, 1, steps, 1)
         camera, light = CAMERA_WORK_WEIGHT * w["vcm_camera"], w["vcm_light"]
         fewest = max(1, self.n_light // MAX_FEWER_LIGHT_PATHS)
