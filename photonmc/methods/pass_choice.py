@@ -147,7 +147,7 @@ class PassChoice:
         pass's error is its camera side, fewer light subpaths cost less for the same variance
         (the held-out cellar: vcm with a quarter of them has the same variance per pass at
         0.77x the time, docs/mbe.md). The model overstates what fewer light subpaths save
-        (_ratio), so N* errs low."""
+        (_ratio): by the cost alone N* errs low (docs/mbe.md)."""
         w = self.work_parts(effort, 1, steps, 1)
         camera, light = CAMERA_WORK_WEIGHT * w["vcm_camera"], w["vcm_light"]
         fewest = max(1, self.n_light // MAX_FEWER_LIGHT_PATHS)
