@@ -79,7 +79,8 @@ class SplatFilm:
     def __init__(self, width: int, height: int, radiance_scale: float):
         self.width, self.height = width, height
         self.film = Film(width, height)
-        self.unit = float(radiance_scale) / FIXED_STEPS
+        self.radiance_scale = float(radiance_scale)
+        self.unit = self.radiance_scale / FIXED_STEPS
         self.fields = FieldGroup("splat-film")
         self.frame = self.fields.vector(3, ti.i64, (height, width))
         self.nonfinite = self.fields.scalar(ti.i64)

@@ -71,6 +71,25 @@ def scaled_box_scene(write_scene, scale=1.0, radiance_scale=1.0):
             <emitter type="area"><rgb name="radiance" value="{5 * radiance_scale}"/></emitter></shape>"""))
 
 
+def assert_image_follows_the_units(render_image, write_scene):
+    """The box of scaled_box_scene scaled by 1e-3 and 1e3 gives the same image (radii,
+    offsets and grids scale with the scene), and its emitter's radiance x1e-6 and x1e6 scales
+    the image linearly (fixed-point films and the chains' first-pass constants are relative
+    to the brightest emitter): a model in millimetres or kilometres, in watts or kilowatts,
+    renders alike. render_image(scene) -> image, with a fixed seed."""
+    from photonmc.metrics import downsample, luminance
+    base = render_image(scaled_box_scene(write_scene))
+    assert base.mean() > 0
+    for scale in (1e-3, 1e3):
+        img = render_image(scaled_box_scene(write_scene, scale=scale))
+        assert abs(img.mean() / base.mean() - 1) < 0.03, scale
+        assert np.abs(downsample(luminance(img), 4) - downsample(luminance(base), 4)).max() \
+            < 0.25 * luminance(base).mean(), scale
+    for k in (1e-6, 1e6):
+        img = render_image(scaled_box_scene(write_scene, radiance_scale=k))
+        np.testing.assert_allclose(img / k, base, rtol=1e-3, atol=1e-6 * base.max(), err_msg=f"radiance x{k}")
+
+
 def slit_band(ref_luminance, margin=4):
     """Image columns around the slit: the columns brighter than 1.5x the image mean (the lit
     gap), widened by `margin` pixels on each side to cover its grazing-lit faces."""

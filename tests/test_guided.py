@@ -9,7 +9,7 @@ from photonmc.imageio import read_image
 from photonmc.loop import Budget, prepare, run
 from photonmc.metrics import downsample, luminance, mean_luminance
 
-from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml, half_resolution, slit_band
+from .conftest import REFS, SCENE_REFERENCES, SCENES, assert_image_follows_the_units, camera_xml, half_resolution, slit_band
 from .test_pt import furnace_expectation, furnace_xml
 
 GUIDED = ["visibility", "spatial-tf"]
@@ -92,6 +92,11 @@ def test_seed_determinism(write_scene, method):
     c = render(scene, method, 4, seed=8)
     assert np.array_equal(a.image, b.image)
     assert not np.array_equal(a.image, c.image)
+
+
+@pytest.mark.parametrize("method", GUIDED)
+def test_scene_scale_and_light_power_extremes(write_scene, method):
+    assert_image_follows_the_units(lambda scene: render(scene, method, 40, seed=5).image, write_scene)
 
 
 @pytest.mark.parametrize("method,options", [("visibility", {}), ("spatial-tf", {"expected_values": True})])

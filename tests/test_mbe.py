@@ -14,7 +14,7 @@ from photonmc.imageio import read_image
 from photonmc.loop import Budget, prepare, run
 from photonmc.metrics import luminance, mean_luminance
 
-from .conftest import REFS, SCENE_REFERENCES, SCENES, camera_xml
+from .conftest import REFS, SCENE_REFERENCES, SCENES, assert_image_follows_the_units, camera_xml
 from .test_effort import shares_after
 from .test_pt import furnace_expectation, furnace_xml
 
@@ -345,6 +345,13 @@ def test_one_chain_and_many_agree(write_scene):
         lum = luminance(r.image)
         assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 3e-3 * expected, chains
         assert r.stats["chains"] == chains
+
+
+def test_scene_scale_and_light_power_extremes(write_scene):
+    """Before its first pass has measured the contribution chain's normalisation, mbe starts
+    it at the brightest emitter's radiance; a start of 1 (until 2026-12-04) made the first
+    pass's level weights depend on the radiance's units, and the image with them."""
+    assert_image_follows_the_units(lambda scene: render(scene, 40, seed=5).image, write_scene)
 
 
 def test_seed_determinism():

@@ -11,7 +11,7 @@ from photonmc.kernels.hashgrid import HashGrid
 from photonmc.metrics import downsample, luminance, mean_luminance
 from photonmc.loop import Budget, prepare, run
 
-from .conftest import REFS, SCENE_REFERENCES, SCENES, scaled_box_scene
+from .conftest import REFS, SCENE_REFERENCES, SCENES, assert_image_follows_the_units, scaled_box_scene
 from .test_pt import furnace_expectation, furnace_xml
 
 
@@ -148,18 +148,7 @@ def test_error_falls_and_converges_to_mitsuba(name):
 
 
 def test_scene_scale_and_light_power_extremes(write_scene):
-    """The same scene scaled by 1e-3 and 1e3 gives the same image (radii, offsets and the
-    grid scale with it); light radiance x1e-6 and x1e6 scales the image linearly (the
-    fixed-point flux is relative to the emitted power)."""
-    base = render(scaled_box_scene(write_scene), 40, seed=5).image
-    assert base.mean() > 0
-    for scale in (1e-3, 1e3):
-        img = render(scaled_box_scene(write_scene, scale=scale), 40, seed=5).image
-        assert abs(img.mean() / base.mean() - 1) < 0.03
-        assert np.abs(downsample(luminance(img), 4) - downsample(luminance(base), 4)).max() < 0.25 * luminance(base).mean()
-    for k in (1e-6, 1e6):
-        img = render(scaled_box_scene(write_scene, radiance_scale=k), 40, seed=5).image
-        np.testing.assert_allclose(img / k, base, rtol=1e-3, atol=1e-6 * base.max())
+    assert_image_follows_the_units(lambda scene: render(scene, 40, seed=5).image, write_scene)
 
 
 def test_many_iterations_on_a_tiny_image(write_scene):

@@ -308,8 +308,15 @@ class Mbe(Vcm):
         self.light_work_last = np.zeros(4)      # light_counters after the last pass
         self.pass_choice = PassChoice(self.n_light, self.independent is not None)
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
-        self.pre_scale_host = np.ones(self.n_levels, np.float32)   # pre_scale's value, read without a kernel
-        self.b_mis_host = np.ones(self.n_levels, np.float32)       # b_mis's, likewise
+        # pre_scale's and b_mis's values, read without a kernel. Before a pass has measured
+        # them, the contribution level's (a luminance, in radiance units) start at the
+        # brightest emitter's radiance: a scene's image then scales with its emitters' radiance
+        # from the first pass (tests/test_mbe.py), where a start of 1 weighted the first pass's
+        # levels differently in watts than in kilowatts, and put its contribution splats at a
+        # fixed-point precision relative to the emitters, not to their own size.
+        start = np.array([1.0] + [self.film.radiance_scale] * (self.n_levels - 1))
+        self.pre_scale_host = start.astype(np.float32)
+        self.b_mis_host = start.astype(np.float32)
         self.steps_last = self.n_light
         self.steps_sum = 0
         self.camera_paths_traced = 0        # camera subpaths per pixel so far: the radius's index
