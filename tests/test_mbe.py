@@ -156,6 +156,47 @@ def test_vcm_passes_trace_the_light_subpaths_that_minimise_variance_times_work(v
         assert cost(chosen) <= cost(best) * (1 + 1e-6), (chosen, best)
 
 
+def _measured_kinds(choice, ratio, k, passes, v_c1=0.005):
+    """K of each of `passes` chain passes that PassChoice asks for at a fixed ratio and
+    balance K, each K = 1 pair reporting a camera-side estimate."""
+    ks = []
+    for _ in range(passes):
+        choice.ratio = ratio
+        ks.append(choice.chain_pass_k(k))
+        choice.observe_chain_pass(4096, ks[-1], traced=4096, light_work=12288.0, merges=2048.0 * ks[-1],
+                                  uniform_variance=2.0, radius_sq=0.01)
+        if ks[-2:] == [1, 1]:
+            choice.observe_camera_at_one(v_c1)
+    return ks
+
+
+def test_near_the_break_even_chain_passes_measure_the_camera_side_at_one_subpath():
+    """Where the predicted ratio lies within MEASURE_BAND of 1 and the balance runs chain
+    passes at K > 1, chain passes run in pairs at K = 1 (MEASURE_PAIRS of them, then one every
+    MEASURE_EVERY chain passes) and every chain pass does while vcm passes win; far from the
+    break-even, or at K = 1 already, none is forced. The vcm prediction then takes V_c from
+    the pairs: a camera side measured lower at K = 1 makes vcm passes more attractive."""
+    from photonmc.methods.pass_choice import MEASURE_BAND, MEASURE_EVERY, MEASURE_PAIRS, PassChoice
+    near_chain = _measured_kinds(PassChoice(4096, True), 0.5 * (1 + MEASURE_BAND), 3, 2 * MEASURE_PAIRS + 3 * MEASURE_EVERY)
+    kinds = "".join(map(str, near_chain))
+    first = len(kinds) - len(kinds.lstrip("1"))          # consecutive K = 1 passes: a sample each
+    assert MEASURE_PAIRS + 1 <= first <= MEASURE_PAIRS + 2 and first % 2 == 0, kinds
+    between = kinds[first:].split("11")                  # then a pair every MEASURE_EVERY chain passes
+    assert len(between) >= 3 and all(b == "3" * (MEASURE_EVERY - 2) for b in between[:-1]), kinds
+    near_vcm = _measured_kinds(PassChoice(4096, True), 1.0 / (0.5 * (1 + MEASURE_BAND)), 3, 20)
+    assert near_vcm == [1] * 20
+    for ratio in (0.5 * MEASURE_BAND, 2.0 / MEASURE_BAND):
+        assert _measured_kinds(PassChoice(4096, True), ratio, 3, 40) == [3] * 40
+    assert _measured_kinds(PassChoice(4096, False), 0.9, 3, 40) == [3] * 40
+    # The prediction: the same counts, with and without K = 1 pairs measuring V_c lower.
+    effort = _KnownEffort(0.01, 0.001, camera_work=20.0 * 4096)
+    plain, measured = PassChoice(4096, True), PassChoice(4096, True)
+    _measured_kinds(plain, 0.1, 3, 2 * MEASURE_PAIRS)
+    _measured_kinds(measured, 0.9, 3, 2 * MEASURE_PAIRS, v_c1=0.005)
+    ratios = [c._ratio(effort, 8, 4096, 0.01) for c in (plain, measured)]
+    assert ratios[1] > 1.2 * ratios[0], ratios
+
+
 def test_balanced_vcm_passes_still_reach_the_furnace_radiance(write_scene):
     """With chain passes of one camera subpath per pixel V_u describes a vcm pass's light
     subpaths, and in the furnace at 16x16 the balance traces fewer of them than

@@ -72,11 +72,14 @@ class EffortBalance:
         self.last_camera_paths = None
 
     def observe(self, photons: int, spread: float, half_difference: float, radius_sq: float,
-                camera_work: float, photon_work: float, camera_paths: int = 1, deposits: float = 0.0) -> None:
+                camera_work: float, photon_work: float, camera_paths: int = 1, deposits: float = 0.0,
+                keep: bool = True) -> float | None:
         """One iteration of `photons` photon paths and `camera_paths` camera paths per pixel:
         `spread` = mean over pixels of (this iteration's estimate - the last one's)^2,
         `half_difference` = mean of n (t_a - t_b)^2 / 4, `radius_sq` = mean squared gather
-        radius of the pass, `deposits` the photons deposited into its measurement points."""
+        radius of the pass, `deposits` the photons deposited into its measurement points.
+        Returns this pair's V_c estimate (None for the first iteration); keep=False leaves it
+        and the V_p estimate out of the balance's estimates (mbe's measurement passes)."""
         self.observed += 1
         self.sum_deposits += deposits
         self.sum_camera_work += camera_work
@@ -86,17 +89,19 @@ class EffortBalance:
         last, self.last_photons = self.last_photons, photons
         last_k, self.last_camera_paths = self.last_camera_paths, camera_paths
         if last is None or not radius_sq > 0:
-            return
+            return None
         # Two iterations' estimates are independent:
         # E[(e_i - e_j)^2] = V_c (1/K_i + 1/K_j) + V_p (1/n_i + 1/n_j).
         v_p = half_difference
-        self.camera_variances.append((spread - v_p * (1.0 / photons + 1.0 / last))
-                                     / (1.0 / camera_paths + 1.0 / last_k))
-        self.photon_variances_r2.append(v_p * radius_sq)
-        self.camera_sum += self.camera_variances[-1]
+        v_c = (spread - v_p * (1.0 / photons + 1.0 / last)) / (1.0 / camera_paths + 1.0 / last_k)
+        if keep:
+            self.photon_variances_r2.append(v_p * radius_sq)
+            self.camera_variances.append(v_c)
+            self.camera_sum += v_c
+            self.samples += 1
         del self.camera_variances[:-HISTORY], self.photon_variances_r2[:-HISTORY]
         self.radius_sq = radius_sq
-        self.samples += 1
+        return v_c
 
     def shares(self) -> tuple[float, float] | None:
         """(V_c, V_p at the current radii), or None before there is an estimate."""

@@ -306,6 +306,7 @@ class Mbe(Vcm):
         # Steers K with auto; stats. V_c untrimmed: see EffortBalance.shares.
         self.effort = EffortBalance(self.n_pixels, self.n_light, self.alpha, trim_camera=False)
         self.light_work_last = np.zeros(4)      # light_counters after the last pass
+        self.measured_last = False              # the last chain pass was a measurement pass at K = 1
         self.pass_choice = PassChoice(self.n_light, self.independent is not None)
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
         # pre_scale's and b_mis's values, read without a kernel. Before a pass has measured
@@ -374,7 +375,7 @@ class Mbe(Vcm):
         self.work_done += n_light + self.n_pixels
 
     def _chain_pass(self, it: int):
-        k = self.camera_paths
+        k = self.pass_choice.chain_pass_k(self.camera_paths) if self.camera_paths_auto else self.camera_paths
         # The merging radius follows the camera subpaths per pixel traced so far, not the
         # passes: a pass of K subpaths per pixel shrinks it as K passes of one would, so that
         # the balance's K splits the work without slowing the radius (and its bias) down.
@@ -493,15 +494,24 @@ class Mbe(Vcm):
         v_p_times_n = 0.0 if n_odd == 0 else \
             steps * s_light / self.n_pixels / (self.n_chains / n_even + self.n_chains / n_odd)
         n_subpaths = k * self.n_pixels
-        self.effort.observe(steps, sums[0] / self.n_pixels, v_p_times_n, self.radius ** 2,
-                            n_subpaths + 3.0 * vertices, segments + rays, camera_paths=k, deposits=merges)
+        last_k = self.effort.last_camera_paths
+        measuring = k != self.camera_paths
+        # The balance's V_c and V_p only from pairs of passes at its K (both depend on K: a light
+        # subpath merges with K camera subpaths); pairs at K = 1 measure the vcm passes' camera
+        # side (methods/pass_choice.py, MEASURE_BAND).
+        v_c = self.effort.observe(steps, sums[0] / self.n_pixels, v_p_times_n, self.radius ** 2,
+                                  n_subpaths + 3.0 * vertices, segments + rays, camera_paths=k, deposits=merges,
+                                  keep=not (measuring or self.measured_last))
+        self.measured_last = measuring
+        if k == 1 and last_k == 1 and v_c is not None:
+            self.pass_choice.observe_camera_at_one(v_c)
         uniform_variance = None
         if min(uniform_counts) > 0:
             # one uniform proposal's variance: Var(U_even - U_odd) = V_u (1/n_even + 1/n_odd)
             uniform_variance = s_uniform / self.n_pixels / (1.0 / uniform_counts[0] + 1.0 / uniform_counts[1])
         self.pass_choice.observe_chain_pass(steps, k, traced, segments + rays, merges, uniform_variance,
                                             self.radius ** 2)
-        if self.camera_paths_auto:
+        if self.camera_paths_auto and k == self.camera_paths:
             self.camera_paths = self.effort.next_camera_paths(steps, self.max_camera_paths)
         if n_odd > 0 and min(uniform_halves) > 0.0:
             # beta for the next pass. Where light subpaths rarely contribute U is noisy and

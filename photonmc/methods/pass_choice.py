@@ -25,6 +25,10 @@ candidates) in a cost model fitted to measured times (CAMERA_WORK_WEIGHT, CHAIN_
 While vcm passes win, chain passes still take CHAIN_WORK_SHARE of the work, so that the
 measurements, and the chains' states, stay current.
 
+The camera side of a vcm pass is not a chain pass's at K > 1 (there the camera-only
+techniques count K times); near the break-even, chain passes of one camera subpath per pixel,
+run in pairs, measure it (MEASURE_BAND below).
+
 A vcm pass traces one camera subpath per pixel. vcm passes of several (each camera subpath a
 whole VCM estimator with the pass's light subpaths) were measured and dropped: chosen by the
 same prediction they took over the held-out closet, where independent light subpaths rarely
@@ -62,6 +66,19 @@ MAX_FEWER_LIGHT_PATHS = 16
 # light subpaths, predicted 5x better than chain passes, and mbe went from 0.75x vcm's RMSE
 # to 0.90x (docs/mbe.md).
 MIN_PASSES_FOR_BALANCE = 16
+# Measurement pairs: V_c measured at K > 1 is not a vcm pass's camera side (the camera-only
+# techniques count K times: in the held-out cellar 0.0096 per camera subpath at K = 2 against
+# 0.0087 at K = 1, 0.0086 in vcm), and near the break-even that error decides the kind (the
+# cellar's predicted 0.85 was 1.18 measured). Where the predicted ratio lies within
+# MEASURE_BAND of 1 (the size of that error) and the balance's K > 1, chain passes run at
+# K = 1 in pairs, whose consecutive spread measures V_c at K = 1 (and V_u at K = 1, which
+# starts the balance of the vcm passes' light subpaths), until MEASURE_PAIRS estimates are
+# in, then a pair every MEASURE_EVERY chain passes; while vcm passes win there, every chain
+# pass does (they are a tenth of the work). The vcm prediction then uses the pairs' V_c and
+# V_u (docs/mbe.md, "Measurement pairs at one camera subpath").
+MEASURE_BAND = 0.7
+MEASURE_PAIRS = 8
+MEASURE_EVERY = 32
 
 
 class PassChoice:
@@ -81,6 +98,31 @@ class PassChoice:
         self.ratio = None               # last predicted (chain variance x work) / (vcm's)
         self.vcm_light_paths = self.n_light   # light subpaths of the next vcm pass
         self.vcm_light_paths_sum = 0.0  # over the vcm passes made
+        self.camera_k1_sum = 0.0        # V_c estimates from consecutive chain passes of K = 1
+        self.camera_k1_count = 0
+        self.measuring_left = 0         # chain passes of the current measurement pair still to run at K = 1
+        self.last_pair_at = -MEASURE_EVERY
+        self.measured_passes = 0
+
+    def chain_pass_k(self, k: int) -> int:
+        """The K of the next chain pass: the balance's K, or 1 in a measurement pair."""
+        near = (k > 1 and self.enabled and self.ratio is not None
+                and MEASURE_BAND < self.ratio < 1.0 / MEASURE_BAND)
+        if self.measuring_left > 0:
+            self.measuring_left -= 1
+        elif near and self.ratio > 1.0:
+            pass        # vcm passes win: the chain passes, a tenth of the work, measure
+        elif near and (self.camera_k1_count < MEASURE_PAIRS or self.chain_passes - self.last_pair_at >= MEASURE_EVERY):
+            self.measuring_left, self.last_pair_at = 1, self.chain_passes
+        else:
+            return k
+        self.measured_passes += 1
+        return 1
+
+    def observe_camera_at_one(self, v_c: float) -> None:
+        """V_c from two consecutive chain passes of one camera subpath per pixel."""
+        self.camera_k1_sum += v_c
+        self.camera_k1_count += 1
 
     def observe_chain_pass(self, steps: int, k: int, traced: float, light_work: float, merges: float,
                            uniform_variance: float | None, radius_sq: float) -> None:
@@ -131,11 +173,13 @@ class PassChoice:
         # so it makes a pass of fewer light subpaths look cheaper than it is (mesh-room at
         # 1,400 of 4,096: 0.40x the time predicted, 0.75x measured), and judged there a vcm
         # pass could win where chain passes do. The balance only sizes the vcm passes taken.
-        vcm = (v_c + v_u / self.n_light) * self.work(effort, 1, steps)[1]
+        # A vcm pass traces one camera subpath per pixel: its V_c and V_u are K = 1's where measured.
+        v_c1 = self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count >= MEASURE_PAIRS else v_c
+        v_u1 = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq if self.uniform_passes_k1 >= MEASURE_PAIRS else v_u
+        vcm = (max(v_c1, 0.0) + v_u1 / self.n_light) * self.work(effort, 1, steps)[1]
         self.vcm_light_paths = self.n_light
         if self.uniform_passes_k1 >= MIN_PASSES_FOR_BALANCE:
-            v_u1 = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq
-            self.vcm_light_paths = self._balanced_light_paths(effort, steps, v_c, v_u1)
+            self.vcm_light_paths = self._balanced_light_paths(effort, steps, max(v_c1, 0.0), v_u1)
         if not vcm > 0.0 or not math.isfinite(chain):
             return None
         return chain / vcm
@@ -178,5 +222,6 @@ class PassChoice:
 
     def stats(self) -> dict:
         return {"chain_passes": self.chain_passes, "vcm_passes": self.vcm_passes,
-                "predicted_chain_over_vcm": self.ratio,
+                "predicted_chain_over_vcm": self.ratio, "measured_k1_passes": self.measured_passes,
+                "camera_variance_k1": self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count else None,
                 "vcm_pass_light_paths_mean": (self.vcm_light_paths_sum / self.vcm_passes if self.vcm_passes else None)}
