@@ -172,27 +172,34 @@ def _measured_kinds(choice, ratio, k, passes, v_c1=0.005):
 
 def test_near_the_break_even_chain_passes_measure_the_camera_side_at_one_subpath():
     """Where the predicted ratio lies within MEASURE_BAND of 1 and the balance runs chain
-    passes at K > 1, chain passes run in pairs at K = 1 (MEASURE_PAIRS of them, then one every
-    MEASURE_EVERY chain passes) and every chain pass does while vcm passes win; far from the
-    break-even, or at K = 1 already, none is forced. The vcm prediction then takes V_c from
+    passes at 1 < K <= MEASURE_MAX_K, chain passes run in pairs at K = 1 after the first
+    MEASURE_AFTER (MEASURE_PAIRS estimates, then a pair every MEASURE_EVERY chain passes) and
+    every chain pass does while vcm passes win; far from the break-even, at K = 1 already, at
+    a larger K or with --vcm-passes off, none is forced. The vcm prediction then takes V_c from
     the pairs: a camera side measured lower at K = 1 makes vcm passes more attractive."""
-    from photonmc.methods.pass_choice import MEASURE_BAND, MEASURE_EVERY, MEASURE_PAIRS, PassChoice
-    near_chain = _measured_kinds(PassChoice(4096, True), 0.5 * (1 + MEASURE_BAND), 3, 2 * MEASURE_PAIRS + 3 * MEASURE_EVERY)
-    kinds = "".join(map(str, near_chain))
+    from photonmc.methods.pass_choice import (MEASURE_AFTER, MEASURE_BAND, MEASURE_EVERY, MEASURE_MAX_K,
+                                              MEASURE_PAIRS, PassChoice)
+    near_chain = _measured_kinds(PassChoice(4096, True), 0.5 * (1 + MEASURE_BAND), 3,
+                                 MEASURE_AFTER + 2 * MEASURE_PAIRS + 3 * MEASURE_EVERY)
+    assert near_chain[:MEASURE_AFTER] == [3] * MEASURE_AFTER       # K settles first
+    kinds = "".join(map(str, near_chain[MEASURE_AFTER:]))
     first = len(kinds) - len(kinds.lstrip("1"))          # consecutive K = 1 passes: a sample each
     assert MEASURE_PAIRS + 1 <= first <= MEASURE_PAIRS + 2 and first % 2 == 0, kinds
     between = kinds[first:].split("11")                  # then a pair every MEASURE_EVERY chain passes
     assert len(between) >= 3 and all(b == "3" * (MEASURE_EVERY - 2) for b in between[:-1]), kinds
-    near_vcm = _measured_kinds(PassChoice(4096, True), 1.0 / (0.5 * (1 + MEASURE_BAND)), 3, 20)
-    assert near_vcm == [1] * 20
+    near_vcm = _measured_kinds(PassChoice(4096, True), 1.0 / (0.5 * (1 + MEASURE_BAND)), 3, MEASURE_AFTER + 20)
+    assert near_vcm == [3] * MEASURE_AFTER + [1] * 20
     for ratio in (0.5 * MEASURE_BAND, 2.0 / MEASURE_BAND):
-        assert _measured_kinds(PassChoice(4096, True), ratio, 3, 40) == [3] * 40
-    assert _measured_kinds(PassChoice(4096, False), 0.9, 3, 40) == [3] * 40
+        assert _measured_kinds(PassChoice(4096, True), ratio, 3, 60) == [3] * 60
+    assert _measured_kinds(PassChoice(4096, False), 0.9, 3, 60) == [3] * 60
+    # where a pass at K = 1 would cost more than MEASURE_MAX_K passes' variance, none is made
+    big = MEASURE_MAX_K + 1
+    assert _measured_kinds(PassChoice(4096, True), 0.9, big, 60) == [big] * 60
     # The prediction: the same counts, with and without K = 1 pairs measuring V_c lower.
     effort = _KnownEffort(0.01, 0.001, camera_work=20.0 * 4096)
     plain, measured = PassChoice(4096, True), PassChoice(4096, True)
-    _measured_kinds(plain, 0.1, 3, 2 * MEASURE_PAIRS)
-    _measured_kinds(measured, 0.9, 3, 2 * MEASURE_PAIRS, v_c1=0.005)
+    _measured_kinds(plain, 0.1, 3, MEASURE_AFTER + 2 * MEASURE_PAIRS)
+    _measured_kinds(measured, 0.9, 3, MEASURE_AFTER + 2 * MEASURE_PAIRS, v_c1=0.005)
     ratios = [c._ratio(effort, 8, 4096, 0.01) for c in (plain, measured)]
     assert ratios[1] > 1.2 * ratios[0], ratios
 
