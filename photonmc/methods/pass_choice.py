@@ -59,7 +59,8 @@ MIN_CHAIN_PASSES = 4     # chain passes measured before the first vcm pass
 # A vcm pass traces between --light-paths / MAX_FEWER_LIGHT_PATHS and --light-paths light
 # subpaths (the store holds --light-paths'; fewer stand in where a pass's error is its camera side).
 MAX_FEWER_LIGHT_PATHS = 16
-# ... once this many chain passes of one camera subpath per pixel have measured V_u. At K > 1
+# ... once this many chain passes of one camera subpath per pixel (the balance's, or the
+# measurement pairs' below) have measured V_u. At K > 1
 # V_u does not describe a vcm pass's light subpaths (they merge with K camera subpaths per
 # pixel under weights that count the camera-only techniques K times), and measured, it is
 # lower: balanced by it, the Cornell box (chain passes at K = 14) took vcm passes of 256
