@@ -156,12 +156,13 @@ def test_vcm_passes_trace_the_light_subpaths_that_minimise_variance_times_work(v
         assert cost(chosen) <= cost(best) * (1 + 1e-6), (chosen, best)
 
 
-def _measured_kinds(choice, ratio, k, passes, v_c1=0.005):
-    """K of each of `passes` chain passes that PassChoice asks for at a fixed ratio and
-    balance K, each K = 1 pair reporting a camera-side estimate."""
+def _measured_kinds(choice, ratio, k, passes, v_c1=0.005, ratio_at_k=None):
+    """K of each of `passes` chain passes that PassChoice asks for at a fixed ratio (and ratio
+    predicted with V_c at K, the same by default) and balance K, each K = 1 pair reporting a
+    camera-side estimate."""
     ks = []
     for _ in range(passes):
-        choice.ratio = ratio
+        choice.ratio, choice.ratio_at_k = ratio, ratio if ratio_at_k is None else ratio_at_k
         ks.append(choice.chain_pass_k(k))
         choice.observe_chain_pass(4096, ks[-1], traced=4096, light_work=12288.0, merges=2048.0 * ks[-1],
                                   uniform_variance=2.0, radius_sq=0.01)
@@ -192,6 +193,11 @@ def test_near_the_break_even_chain_passes_measure_the_camera_side_at_one_subpath
     for ratio in (0.5 * MEASURE_BAND, 2.0 / MEASURE_BAND):
         assert _measured_kinds(PassChoice(4096, True), ratio, 3, 60) == [3] * 60
     assert _measured_kinds(PassChoice(4096, False), 0.9, 3, 60) == [3] * 60
+    # a high estimate at K = 1 that moves the prediction out of the band does not end the
+    # pairs: the band is judged on the prediction they correct
+    kept_on = _measured_kinds(PassChoice(4096, True), 0.5 * MEASURE_BAND, 3, MEASURE_AFTER + 2 * MEASURE_PAIRS
+                              + 3 * MEASURE_EVERY, ratio_at_k=0.5 * (1 + MEASURE_BAND))
+    assert kept_on == near_chain
     # where a pass at K = 1 would cost more than MEASURE_MAX_K passes' variance, none is made
     big = MEASURE_MAX_K + 1
     assert _measured_kinds(PassChoice(4096, True), 0.9, big, 60) == [big] * 60

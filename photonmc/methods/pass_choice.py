@@ -104,6 +104,7 @@ class PassChoice:
         self.vcm_passes = 0
         self.vcm_work_since_chain = 0.0  # work of the vcm passes since the last chain pass
         self.ratio = None               # last predicted (chain variance x work) / (vcm's)
+        self.ratio_at_k = None          # the same with the vcm pass's V_c and V_u taken at the chain passes' K
         self.vcm_light_paths = self.n_light   # light subpaths of the next vcm pass
         self.vcm_light_paths_sum = 0.0  # over the vcm passes made
         self.camera_k1_sum = 0.0        # V_c estimates from consecutive chain passes of K = 1
@@ -114,11 +115,13 @@ class PassChoice:
 
     def chain_pass_k(self, k: int) -> int:
         """The K of the next chain pass: the balance's K, or 1 in a measurement pair."""
+        # "Near" by the prediction the pairs correct (V_c at K), so that one high estimate at
+        # K = 1 (its spread is heavy-tailed) does not end the measuring that would average it out.
         near = (1 < k <= MEASURE_MAX_K and self.chain_passes >= MEASURE_AFTER and self.enabled
-                and self.ratio is not None and MEASURE_BAND < self.ratio < 1.0 / MEASURE_BAND)
+                and self.ratio_at_k is not None and MEASURE_BAND < self.ratio_at_k < 1.0 / MEASURE_BAND)
         if self.measuring_left > 0:
             self.measuring_left -= 1
-        elif near and self.ratio > 1.0:
+        elif near and self.ratio is not None and self.ratio > 1.0:
             pass        # vcm passes win: the chain passes, a tenth of the work, measure
         elif near and (self.camera_k1_count < MEASURE_PAIRS or self.chain_passes - self.last_pair_at >= MEASURE_EVERY):
             self.measuring_left, self.last_pair_at = 1, self.chain_passes
@@ -185,6 +188,8 @@ class PassChoice:
         v_c1 = self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count >= MEASURE_PAIRS else v_c
         v_u1 = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq if self.uniform_passes_k1 >= MEASURE_PAIRS else v_u
         vcm = (max(v_c1, 0.0) + v_u1 / self.n_light) * self.work(effort, 1, steps)[1]
+        vcm_at_k = (v_c + v_u / self.n_light) * self.work(effort, 1, steps)[1]
+        self.ratio_at_k = chain / vcm_at_k if vcm_at_k > 0.0 and math.isfinite(chain) else None
         self.vcm_light_paths = self.n_light
         if self.uniform_passes_k1 >= MIN_PASSES_FOR_BALANCE:
             self.vcm_light_paths = self._balanced_light_paths(effort, steps, max(v_c1, 0.0), v_u1)
