@@ -128,8 +128,17 @@ class Window:
         return self.log.read_text()
 
     def key(self, name, check=True):
-        subprocess.run(["xdotool", "key", "--window", self.id, name], check=check, env=self.env,
-                       capture_output=True)
+        # xdotool asks the X server for the focused window before it sends the key; Xvfb, with
+        # no window manager, sometimes answers PointerRoot (1) and xdotool stops there ("XGetInputFocus
+        # returned the focused window of 1", once in a cold CI run, 2026-12-04): nothing was sent,
+        # so the key is tried again while the preview still runs.
+        for _ in range(3):
+            r = subprocess.run(["xdotool", "key", "--window", self.id, name], env=self.env, capture_output=True)
+            if r.returncode == 0 or self.proc.poll() is not None:
+                break
+            time.sleep(0.2)
+        if check and r.returncode != 0 and self.proc.poll() is None:
+            raise AssertionError(f"xdotool key {name} failed: {r.stderr.decode(errors='replace')}")
 
     def screenshot(self) -> np.ndarray:
         from PIL import ImageGrab
