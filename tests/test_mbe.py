@@ -70,6 +70,10 @@ def test_several_camera_subpaths_per_pixel_keep_the_furnace(write_scene):
     assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected, lum.mean()
     assert r.stats["camera_paths_per_pixel"] == 3
     assert r.stats["camera_vertices_last_iteration"] > 2 * 16 * 16
+    # the work counts (tools/vcm_pass_split.py): connections are some of the shadow rays, the
+    # light tracing's the others
+    assert 0 < r.stats["light_connections_per_subpath"] < r.stats["light_shadow_rays_per_subpath"]
+    assert r.stats["merge_candidates_per_subpath"] > 0
 
 
 @pytest.mark.parametrize("uniform_weight", [1.0, "auto"])

@@ -8,10 +8,14 @@ theirs is a slight underestimate), beside what the rule predicts for them before
 
 Then, for a vcm Job of the same scene, the light side of a vcm pass alone: the same pass
 (camera subpaths) twice with independent light subpaths, (e_1 - e_2)^2 / 2 = its light-side
-variance, against V_u / N_L (docs/mbe.md, "What the rule's predictions miss"):
+variance, against V_u / N_L (docs/mbe.md, "What the rule's predictions miss"), and the whole
+pass's variance from consecutive passes; with --vcm-light-paths, at each of those light
+subpaths N (the rule's model has the light side grow as 1 / N; docs/mbe.md, "A vcm pass at
+fewer light subpaths", stop 38):
 
     python tools/mbe_pass_variances.py SCENE.xml [-D res=64] [-D NAME=VALUE ...]
                                        [--warm-up 200] [--pairs 60] [--seed 0]
+                                       [--vcm-light-paths 4096,1024,256] [--vcm-techniques bpm]
 
 One JSON line. Which pass a pattern position makes is forced through Mbe's own _vcm_pass and
 _chain_pass, so the chain states and the radius index move as in a render.
@@ -79,10 +83,11 @@ def mbe_passes(job_args, warm_up, pairs):
     return out
 
 
-def vcm_light_side(job_args, warm_up, pairs):
-    """A vcm pass's light side: the pass of one index twice, its light subpaths' seed changed."""
+def vcm_light_side(job_args, warm_up, pairs, light_paths=(None,), techniques=None):
+    """A vcm pass's light side: the pass of one index twice, its light subpaths' seed changed;
+    at each of light_paths (None: --light-paths), with vcm's --techniques."""
     from photonmc.loop import Job
-    p = Job(method="vcm", options={}, **job_args).prepare()
+    p = Job(method="vcm", options={"techniques": techniques}, **job_args).prepare()
     m = p.method
     for _ in range(warm_up):
         m.iterate()
@@ -95,20 +100,23 @@ def vcm_light_side(job_args, warm_up, pairs):
         return light_pass(store, grid, *args)
 
     m._light_pass = with_seed
-    light, total, previous = [], [], None
-    for j in range(pairs):
-        it = warm_up + j
-        images = []
-        for changed in (False, True):
-            other["seed"] = changed
-            images += pass_images(m, lambda _: m.vcm_pass(it, it), 1)
-        light.append(np.mean((images[0] - images[1]) ** 2) / 2)
-        if previous is not None:
-            total.append(np.mean((images[0] - previous) ** 2) / 2)
-        previous = images[0]
-    out = {"vcm_pass_light_side": mean_and_error(light), "vcm_pass": mean_and_error(total), "radius": m.radius}
+    out = {}
+    for n in light_paths:
+        light, total, previous = [], [], None
+        for j in range(pairs):
+            it = warm_up + j
+            images = []
+            for changed in (False, True):
+                other["seed"] = changed
+                images += pass_images(m, lambda _: m.vcm_pass(it, it, n), 1)
+            light.append(np.mean((images[0] - images[1]) ** 2) / 2)
+            if previous is not None:
+                total.append(np.mean((images[0] - previous) ** 2) / 2)
+            previous = images[0]
+        out[str(n or m.n_light)] = {"vcm_pass_light_side": mean_and_error(light), "vcm_pass": mean_and_error(total)}
+    out["radius"] = m.radius
     p.release()
-    return out
+    return out if light_paths != (None,) else {**out.pop(str(m.n_light)), **out}
 
 
 def main():
@@ -118,15 +126,19 @@ def main():
     ap.add_argument("--warm-up", type=int, default=200)
     ap.add_argument("--pairs", type=int, default=60, help="pairs of passes of each kind measured")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--vcm-light-paths", default=None, metavar="N,N,...",
+                    help="measure the vcm pass at each of these light subpaths (default: --light-paths)")
+    ap.add_argument("--vcm-techniques", default=None, help="the vcm pass's --techniques (default: all)")
     args = ap.parse_args()
     from photonmc import runtime
     runtime.init("cpu")
     params = dict(d.split("=", 1) for d in args.defines)
     params.setdefault("res", "64")
     job_args = {"scene": args.scene, "params": params, "seed": args.seed}
+    light_paths = tuple(int(n) for n in args.vcm_light_paths.split(",")) if args.vcm_light_paths else (None,)
     print(json.dumps({"scene": args.scene, "params": params,
                       "mbe": mbe_passes(job_args, args.warm_up, args.pairs),
-                      "vcm": vcm_light_side(job_args, args.warm_up, args.pairs)}))
+                      "vcm": vcm_light_side(job_args, args.warm_up, args.pairs, light_paths, args.vcm_techniques)}))
 
 
 if __name__ == "__main__":

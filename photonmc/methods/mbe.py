@@ -227,8 +227,9 @@ class Mbe(Vcm):
         self.b_mis = f.scalar(ti.f32, self.n_levels)     # previous pass's normalisations (MIS only)
         self.pre_scale = f.scalar(ti.f32, self.n_levels)  # previous pass's level scales (see deposit)
         # light subpaths traced, their segments, their shadow rays, the camera vertices they
-        # tried to merge with (the work the effort balance counts)
-        self.light_counters = f.scalar(ti.i64, 4)
+        # tried to merge with (the work the effort balance counts), and the shadow rays of
+        # their connections alone (stats: tools/vcm_pass_split.py)
+        self.light_counters = f.scalar(ti.i64, 5)
         self._norms = f.vector(3, ti.f32, ())            # merging, pairing, light-tracing normalisations
         # Splat lists: one per chain slot (the state's) and one per ladder (its last probe,
         # `adopt`ed by the slot that accepts it), so that a state deposits without being traced
@@ -305,7 +306,7 @@ class Mbe(Vcm):
         self.pool.large_step = self.large_step
         # Steers K with auto; stats. V_c untrimmed: see EffortBalance.shares.
         self.effort = EffortBalance(self.n_pixels, self.n_light, self.alpha, trim_camera=False)
-        self.light_work_last = np.zeros(4)      # light_counters after the last pass
+        self.light_work_last = np.zeros(5)      # light_counters after the last pass
         self.measured_last = False              # the last chain pass was a measurement pass at K = 1
         self.pass_choice = PassChoice(self.n_light, self.independent is not None)
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
@@ -486,7 +487,7 @@ class Mbe(Vcm):
         s_chains, s_uniform, s_product = float(sums[1]), float(sums[2]), float(sums[3])
         s_light = (1.0 - beta) ** 2 * s_chains + beta ** 2 * s_uniform + 2.0 * beta * (1.0 - beta) * s_product
         light_work = light_counters.astype(np.float64)
-        traced, segments, rays, merges = light_work - self.light_work_last
+        traced, segments, rays, merges, _ = light_work - self.light_work_last
         self.light_work_last = light_work
         n_even, n_odd = (self.n_chains + 1) // 2, self.n_chains // 2
         # Var(t_even - t_odd) = (V_p / n) (c / n_even + c / n_odd) for c ladders in all; with
@@ -733,7 +734,7 @@ class Mbe(Vcm):
         c = self.mis_constants()
         norms = self._norms[None]
         used = 0
-        rays, candidates = 0, 0          # work, counted for the effort balance
+        rays, candidates, connections = 0, 0, 0      # work, counted for the effort balance
         # Light tracing (k = -1: the camera) and the connections to every vertex of the
         # paired camera subpath (k >= 0) in one loop, so that the light side's BSDF and the
         # shadow ray are inlined once: each copy of the BVH traversal costs compile time
@@ -778,6 +779,8 @@ class Mbe(Vcm):
                         if k < 0:
                             a, na, b, nb = lv.p, lv.ng, sc.cam_origin, w
                         rays += 1
+                        if k >= 0:
+                            connections += 1
                         if sc.visible(a, na, b, nb):
                             if k < 0:
                                 self._emit(vkey, py, px, contrib)
@@ -810,6 +813,7 @@ class Mbe(Vcm):
                             used = 1
         ti.atomic_add(self.light_counters[2], rays)
         ti.atomic_add(self.light_counters[3], candidates)
+        ti.atomic_add(self.light_counters[4], connections)
         return used
 
     # -- results ----------------------------------------------------------------------
@@ -862,6 +866,9 @@ class Mbe(Vcm):
             "splat_lists_overflowed": int(ls[1]),
             "splat_list_mean_length": float(ls[2]) / max(int(ls[3]), 1),
             "light_segments_per_subpath": float(lc[1]) / max(int(lc[0]), 1),
+            "light_shadow_rays_per_subpath": float(lc[2]) / max(int(lc[0]), 1),
+            "light_connections_per_subpath": float(lc[4]) / max(int(lc[0]), 1),
+            "merge_candidates_per_subpath": float(lc[3]) / max(int(lc[0]), 1),
             "camera_vertices_last_iteration": self.vertices_last,
             "camera_vertices_mean": self.vertices_sum / max(self.iterations, 1),
             "camera_vertex_capacity": vertices,
