@@ -160,6 +160,30 @@ def test_vcm_passes_trace_the_light_subpaths_that_minimise_variance_times_work(v
         assert cost(chosen) <= cost(best) * (1 + 1e-6), (chosen, best)
 
 
+def test_a_vcm_pass_is_judged_at_the_light_subpaths_it_traces():
+    """Once the balance sizes the vcm passes (V_u measured at K = 1), the kinds are compared
+    at the light subpaths N* a vcm pass will trace, not at --light-paths: where the camera
+    side carries the error, fewer light subpaths make the vcm pass predicted cheaper for
+    nearly the same variance, so a chain pass that a vcm pass of --light-paths would lose to
+    loses here (docs/mbe.md, stop 38); before the balance starts, at --light-paths."""
+    from photonmc.methods.pass_choice import MIN_PASSES_FOR_BALANCE, PassChoice
+    n_light, steps, r2, v_c, v_p, v_u = 4096, 4096, 0.01, 0.01, 0.001, 2.0
+    effort = _KnownEffort(v_c, v_p, camera_work=20.0 * n_light)
+    chain = None
+    for passes, balanced in ((MIN_PASSES_FOR_BALANCE - 1, False), (MIN_PASSES_FOR_BALANCE, True)):
+        c = PassChoice(n_light, True)
+        for _ in range(passes):
+            c.observe_chain_pass(steps, 1, traced=steps, light_work=3.0 * steps, merges=0.5 * steps,
+                                 uniform_variance=v_u, radius_sq=r2)
+        c.next_is_vcm(effort, 1, 8, steps, r2)
+        chain = min((v_c / k + v_p / steps) * c.work(effort, k, steps)[0] for k in range(1, 9))
+        n = c.vcm_light_paths
+        assert (n < n_light) == balanced
+        at_all = chain / ((v_c + v_u / n_light) * c.work(effort, 1, steps)[1])
+        assert c.ratio == pytest.approx(chain / ((v_c + v_u / n) * c.work(effort, 1, steps, n)[1]))
+        assert c.ratio > at_all if balanced else c.ratio == pytest.approx(at_all)
+
+
 def _measured_kinds(choice, ratio, k, passes, v_c1=0.005, ratio_at_k=None):
     """K of each of `passes` chain passes that PassChoice asks for at a fixed ratio (and ratio
     predicted with V_c at K, the same by default) and balance K, each K = 1 pair reporting a

@@ -16,9 +16,9 @@ V_c the camera side's variance per camera subpath and V_p the chains' light side
 list (the pass's uniform proposals, even ladders against odd: the light side of independent
 light subpaths, which is what vcm traces), K the camera subpaths per pixel of a chain pass
 (at the K that minimises its product), n its chain steps, N_L the vcm pass's light subpaths:
---light-paths in the comparison; the vcm passes taken trace those that minimise their
-product, within [--light-paths / 16, --light-paths] (the effort balance of methods/effort.py,
-for vcm's passes; docs/mbe.md, "Light subpaths of the vcm passes by the effort balance").
+those that minimise its product, within [--light-paths / 16, --light-paths] (the effort
+balance of methods/effort.py, for vcm's passes; docs/mbe.md, "Light subpaths of the vcm
+passes by the effort balance"), and the kinds are compared at that N_L (stop 38).
 Work is counted,
 not timed, so that a seed gives one image: the effort balance's counts (rays, segments, merge
 candidates) in a cost model fitted to measured times (CAMERA_WORK_WEIGHT, CHAIN_STEP_WORK).
@@ -179,20 +179,26 @@ class PassChoice:
         # chains could never earn back the K that makes them pay (the attic at 32x32: 4.9x at
         # K = 1 in its first passes, 1.1x at K = 8).
         chain = min((v_c / kk + v_p / steps) * self.work(effort, kk, steps)[0] for kk in range(1, most_k + 1))
-        # The kinds are compared at --light-paths: the cost model counts a vcm pass's
-        # connections as light work, though they grow with the pixels, not the light subpaths,
-        # so it makes a pass of fewer light subpaths look cheaper than it is (mesh-room at
-        # 1,400 of 4,096: 0.40x the time predicted, 0.75x measured), and judged there a vcm
-        # pass could win where chain passes do. The balance only sizes the vcm passes taken.
-        # A vcm pass traces one camera subpath per pixel: its V_c and V_u are K = 1's where measured.
+        # A vcm pass traces one camera subpath per pixel: its V_c and V_u are K = 1's where
+        # measured. It is judged at the light subpaths N* it will trace (the balance's). Both
+        # halves of that prediction err as N falls, in opposite directions: the cost model
+        # counts connections as light work, so a pass of fewer light subpaths looks cheaper
+        # than it is (the cellar at 1,024 of 4,096: 0.37x the time predicted, 0.79x measured),
+        # and V_u / N has its light side grow as 1 / N where VCM's weights move to the
+        # connections, whose variance does not grow (measured: 1.4x for 4x fewer against 4x).
+        # Together they err by about 30 % either way on three rooms measured, and judged at
+        # N* mbe beats vcm by 7-21 % in the five rooms where the measurement pairs find the
+        # break-even at K = 2 (the held-out cellar 1.05x -> 0.93x, corner room 1.14x -> 0.87x;
+        # docs/mbe.md, stop 38).
         v_c1 = self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count >= MEASURE_PAIRS else v_c
         v_u1 = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq if self.uniform_passes_k1 >= MEASURE_PAIRS else v_u
-        vcm = (max(v_c1, 0.0) + v_u1 / self.n_light) * self.work(effort, 1, steps)[1]
         vcm_at_k = (v_c + v_u / self.n_light) * self.work(effort, 1, steps)[1]
         self.ratio_at_k = chain / vcm_at_k if vcm_at_k > 0.0 and math.isfinite(chain) else None
         self.vcm_light_paths = self.n_light
         if self.uniform_passes_k1 >= MIN_PASSES_FOR_BALANCE:
             self.vcm_light_paths = self._balanced_light_paths(effort, steps, max(v_c1, 0.0), v_u1)
+        n = self.vcm_light_paths
+        vcm = (max(v_c1, 0.0) + v_u1 / n) * self.work(effort, 1, steps, n)[1]
         if not vcm > 0.0 or not math.isfinite(chain):
             return None
         return chain / vcm
@@ -203,8 +209,8 @@ class PassChoice:
         the pass's camera work and c a light subpath's, in the fitted cost model. Where a
         pass's error is its camera side, fewer light subpaths cost less for the same variance
         (the held-out cellar: vcm with a quarter of them has the same variance per pass at
-        0.77x the time, docs/mbe.md). The model overstates what fewer light subpaths save
-        (_ratio): by the cost alone N* errs low (docs/mbe.md)."""
+        0.77x the time, docs/mbe.md). The cost model overstates what fewer light subpaths
+        save and V_u / N how fast their variance grows (_ratio; docs/mbe.md, stop 38)."""
         w = self.work_parts(effort, 1, steps, 1)
         camera, light = CAMERA_WORK_WEIGHT * w["vcm_camera"], w["vcm_light"]
         fewest = max(1, self.n_light // MAX_FEWER_LIGHT_PATHS)
