@@ -187,9 +187,9 @@ class PassChoice:
         # and V_u / N has its light side grow as 1 / N where VCM's weights move to the
         # connections, whose variance does not grow (measured: 1.4x for 4x fewer against 4x).
         # Together they err by about 30 % either way on three rooms measured, and judged at
-        # N* mbe beats vcm by 7-21 % in the five rooms where the measurement pairs find the
-        # break-even at K = 2 (the held-out cellar 1.05x -> 0.93x, corner room 1.14x -> 0.87x;
-        # docs/mbe.md, stop 38).
+        # N* mbe beats vcm by 7-25 % in the six rooms where the measurement pairs find the
+        # break-even at K = 2 to 4 (the held-out cellar 1.05x -> 0.93x, corner room 1.14x ->
+        # 0.87x; docs/mbe.md, stop 38).
         v_c1 = self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count >= MEASURE_PAIRS else v_c
         v_u1 = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq if self.uniform_passes_k1 >= MEASURE_PAIRS else v_u
         vcm_at_k = (v_c + v_u / self.n_light) * self.work(effort, 1, steps)[1]
