@@ -169,7 +169,6 @@ def test_a_vcm_pass_is_judged_at_the_light_subpaths_it_traces():
     from photonmc.methods.pass_choice import MIN_PASSES_FOR_BALANCE, PassChoice
     n_light, steps, r2, v_c, v_p, v_u = 4096, 4096, 0.01, 0.01, 0.001, 2.0
     effort = _KnownEffort(v_c, v_p, camera_work=20.0 * n_light)
-    chain = None
     for passes, balanced in ((MIN_PASSES_FOR_BALANCE - 1, False), (MIN_PASSES_FOR_BALANCE, True)):
         c = PassChoice(n_light, True)
         for _ in range(passes):
