@@ -19,7 +19,7 @@ def _define(text: str):
 
 
 def _number_or_auto(what: str):
-    """An argparse type: an integer, or the word auto (--photons, --camera-paths)."""
+    """An argparse type: an integer, or the word auto (--photons, --camera-paths, --light-paths)."""
     def parse(text: str):
         if text == "auto":
             return text
@@ -32,6 +32,7 @@ def _number_or_auto(what: str):
 
 _photons = _number_or_auto("photons")
 _camera_paths = _number_or_auto("camera paths")
+_light_paths = _number_or_auto("light paths")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -148,8 +149,10 @@ def _add_guiding_options(parser):
 def _add_vcm_options(parser):
     g = parser.add_argument_group("vertex connection and merging (vcm, mbe; --alpha and --radius as above, "
                                   "default alpha 0.75 and 2 pixel footprints at the median first-hit distance)")
-    g.add_argument("--light-paths", type=int, help="light subpaths per iteration (default: one per pixel); "
-                                                   "mbe: chain steps per iteration")
+    g.add_argument("--light-paths", type=_light_paths,
+                   help="vcm: light subpaths per iteration, or auto (the default): as many as a pass is worth, "
+                        "measured as the render goes, at most one per pixel; mbe: chain steps per iteration "
+                        "(default: one per pixel)")
     g.add_argument("--techniques", help="vcm only: vcm (default: all), bpt (no merging), bpm (merging only), "
                                         "lt (light tracing only)")
     g.add_argument("--mis", choices=["modified", "plain"],

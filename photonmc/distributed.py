@@ -162,7 +162,7 @@ def render(job: Job, budget: Budget, resumed: list[RenderState] | None = None, s
     actor_class = _worker_actor(ray).options(num_cpus=threads or 1)
     identity = job.identity()
     pool = [Worker(k, m.job, state=m) for k, m in enumerate(resumed)]
-    if not resumed and workers > 1 and method_class(job.method).independent_iterations:
+    if not resumed and workers > 1 and method_class(job.method).iterations_independent(job.options):
         # Interleaved slices of one render: the merge is the render one process would make.
         pool = [Worker(k, {**identity, "iteration_slice": [k, workers]}) for k in range(workers)]
     used = {m.seed for m in resumed}

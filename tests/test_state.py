@@ -74,6 +74,24 @@ def test_resume_of_a_balanced_render_equals_straight(tmp_path, method, options, 
     p.release()
 
 
+def test_resume_of_vcm_with_balanced_light_paths_equals_straight(tmp_path):
+    """vcm --light-paths auto (the default): the light-path balance's sums, its centre and the
+    last pass's estimate it differences against are part of the state, so a render saved after
+    the balance has moved resumes to the same choices and the same image."""
+    j = Job(scene=CORNELL, params=SMALL, method="vcm", seed=3, options={"light_paths": "auto"})
+    half = 120
+    straight = rendered(j, 2 * half)
+    [saved] = state.load(state.save(tmp_path / "auto.state", [rendered(j, half)]))
+    assert saved.plain["balance.moves"] > 0
+    p, _ = resume(saved)
+    for _ in range(half):
+        p.method.iterate()
+    assert p.method.balance.log2_centre == straight.plain["balance.log2_centre"]
+    assert p.method.balance.moves == straight.plain["balance.moves"] > saved.plain["balance.moves"]
+    assert np.array_equal(p.method.image(), straight.image)
+    p.release()
+
+
 def test_resume_across_mbe_vcm_passes_equals_straight(tmp_path):
     """mbe's vcm passes (methods/pass_choice.py) render into its film with a Vcm of their own:
     its fields and the choice's sums are part of the state, so a render saved while vcm passes

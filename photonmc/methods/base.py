@@ -49,6 +49,13 @@ class Method:
             raise SettingsError(f"method '{self.name}' does not take {names}")
         self.options = {**self.OPTIONS, **given}
 
+    @classmethod
+    def iterations_independent(cls, options: dict) -> bool:
+        """Whether a render with these options may be split into interleaved slices of its
+        iterations (distributed.py): independent_iterations, unless an option makes a pass
+        depend on the ones before (vcm's --light-paths auto)."""
+        return cls.independent_iterations
+
     def interleave(self, offset: int, stride: int) -> None:
         """Render only the iteration indices offset, offset + stride, ... of the render."""
         if not self.independent_iterations and stride != 1:

@@ -79,6 +79,7 @@ from ..kernels.vcm_mis import PathVertex
 from .base import MethodSettings
 from .effort import EffortBalance, UniformWeight, uniform_weight_option
 from .guided import LADDER_BURN_IN
+from .light_balance import LightPathBalance
 from .pass_choice import PassChoice
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 from ..taichi_frontend import data_oriented
@@ -160,6 +161,7 @@ class Mbe(Vcm):
     name = "mbe"
     work_unit = "paths"
     default_iterations = 64
+    balances_light_paths = False        # --light-paths: chain steps per pass
     independent_iterations = False      # the chains carry their states and mutation sizes on
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
@@ -249,7 +251,7 @@ class Mbe(Vcm):
         if opts["vcm_passes"] == "auto":
             self.independent = Vcm(dscene, MethodSettings(settings.seed, settings.max_depth, {
                 "light_paths": self.n_light, "alpha": self.alpha, "radius": opts["radius"],
-                "radius_pixels": opts["radius_pixels"]}))
+                "radius_pixels": opts["radius_pixels"], "measure_passes": True}))
             self.independent.film.release()
             self.independent.film = self.film
         self._reset_chains()
@@ -309,6 +311,8 @@ class Mbe(Vcm):
         self.light_work_last = np.zeros(5)      # light_counters after the last pass
         self.measured_last = False              # the last chain pass was a measurement pass at K = 1
         self.pass_choice = PassChoice(self.n_light, self.independent is not None)
+        # the vcm passes' light subpaths, measured as vcm's own are (methods/light_balance.py)
+        self.light_balance = LightPathBalance(self.n_light)
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
         # pre_scale's and b_mis's values, read without a kernel. Before a pass has measured
         # them, the contribution level's (a luminance, in radiance units) start at the
@@ -351,7 +355,7 @@ class Mbe(Vcm):
     def _iterate(self):
         it = self.iteration_index
         if self.pass_choice.next_is_vcm(self.effort, self.camera_paths, self.max_camera_paths, self.steps_last,
-                                        self.radius ** 2):
+                                        self.radius ** 2, self.light_balance.next_light_paths()):
             self._vcm_pass(it)
         else:
             self._chain_pass(it)
@@ -365,13 +369,16 @@ class Mbe(Vcm):
             self._vcm_pass(self.iteration_index)
 
     def _vcm_pass(self, it: int):
-        """A pass of vcm's (independent light subpaths, as many as the pass choice's balance
-        gives, at most --light-paths; one camera subpath per pixel) into this film, with the
-        radius of this method's next camera subpath."""
-        self.independent.r1 = self.r1
-        n_light = self.pass_choice.vcm_light_paths
-        self.independent.vcm_pass(it, self.camera_paths_traced, n_light)
-        self.radius = self.independent.radius
+        """A pass of vcm's (independent light subpaths, as many as vcm's light-path balance
+        gives, measured on these passes, at most --light-paths; one camera subpath per pixel)
+        into this film, with the radius of this method's next camera subpath."""
+        v = self.independent
+        v.r1 = self.r1
+        n_light = self.light_balance.next_light_paths()
+        spread, segments, vertices, connections, merges = v.vcm_pass(it, self.camera_paths_traced, n_light)
+        work = LightPathBalance.work(self.n_pixels, vertices, connections, segments, v.vertices_last, merges)
+        self.light_balance.observe(n_light, spread, self.n_pixels, work)
+        self.radius = v.radius
         self.camera_paths_traced += 1
         self.work_done += n_light + self.n_pixels
 
@@ -854,7 +861,7 @@ class Mbe(Vcm):
             "uniform_weight": self.beta.value, "uniform_weight_auto": self.beta.auto,
             "large_step_last_iteration": self.pool.large_step,
             "effort": self.effort.stats(),
-            "passes": self.pass_choice.stats(),
+            "passes": {**self.pass_choice.stats(), "light_path_balance": self.light_balance.stats()},
             "chains": self.n_chains,
             "mis": "modified" if self.modified_mis else "plain",
             "radius": self.radius, "initial_radius": self.r1, "alpha": self.alpha,

@@ -18,7 +18,10 @@ light subpaths, which is what vcm traces), K the camera subpaths per pixel of a 
 (at the K that minimises its product), n its chain steps, N_L the vcm pass's light subpaths:
 those that minimise its product, within [--light-paths / 16, --light-paths] (the effort
 balance of methods/effort.py, for vcm's passes; docs/mbe.md, "Light subpaths of the vcm
-passes by the effort balance"), and the kinds are compared at that N_L (stop 38).
+passes by the effort balance"), and the kinds are compared at that N_L (stop 38). The vcm
+passes themselves trace as many as vcm's light-path balance finds best, measured on them
+(methods/light_balance.py; docs/mbe.md, stop 39): this model's N* errs high where VCM's
+weights move to the connections, and stays the point at which the kinds are compared.
 Work is counted,
 not timed, so that a seed gives one image: the effort balance's counts (rays, segments, merge
 candidates) in a cost model fitted to measured times (CAMERA_WORK_WEIGHT, CHAIN_STEP_WORK).
@@ -105,7 +108,8 @@ class PassChoice:
         self.vcm_work_since_chain = 0.0  # work of the vcm passes since the last chain pass
         self.ratio = None               # last predicted (chain variance x work) / (vcm's)
         self.ratio_at_k = None          # the same with the vcm pass's V_c and V_u taken at the chain passes' K
-        self.vcm_light_paths = self.n_light   # light subpaths of the next vcm pass
+        # N*: the light subpaths a vcm pass is judged at (the passes trace the light-path balance's)
+        self.vcm_light_paths = self.n_light
         self.vcm_light_paths_sum = 0.0  # over the vcm passes made
         self.camera_k1_sum = 0.0        # V_c estimates from consecutive chain passes of K = 1
         self.camera_k1_count = 0
@@ -153,9 +157,10 @@ class PassChoice:
                 self.uniform_r2_sum_k1 += uniform_variance * radius_sq
                 self.uniform_passes_k1 += 1
 
-    def next_is_vcm(self, effort, k: int, most_k: int, steps: int, radius_sq: float) -> bool:
+    def next_is_vcm(self, effort, k: int, most_k: int, steps: int, radius_sq: float, n_light: int) -> bool:
         """Whether the next pass should be a vcm pass, against a chain pass of `steps` steps
-        and K camera subpaths per pixel (at most `most_k`)."""
+        and K camera subpaths per pixel (at most `most_k`); a vcm pass would trace n_light
+        light subpaths (vcm's light-path balance; the prediction is made at N*, below)."""
         self.ratio = self._ratio(effort, most_k, steps, radius_sq)
         if not (self.enabled and self.ratio is not None and self.ratio > 1.0):
             return False
@@ -163,8 +168,8 @@ class PassChoice:
         if self.vcm_work_since_chain * CHAIN_WORK_SHARE >= chain_work * (1.0 - CHAIN_WORK_SHARE):
             return False
         self.vcm_passes += 1
-        self.vcm_light_paths_sum += self.vcm_light_paths
-        self.vcm_work_since_chain += self.work(effort, k, steps, self.vcm_light_paths)[1]
+        self.vcm_light_paths_sum += n_light
+        self.vcm_work_since_chain += self.work(effort, k, steps, n_light)[1]
         return True
 
     def _ratio(self, effort, most_k: int, steps: int, radius_sq: float) -> float | None:

@@ -29,12 +29,13 @@ from ..kernels.camera_walk import CONTINUE, MATERIAL_ROULETTE, camera_walk
 from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import PointGrid
-from ..kernels.photon import MAX_PHOTON_SEGMENTS, trace_photon
+from ..kernels.photon import MAX_PHOTON_SEGMENTS, photon_segments, trace_photon
 from ..kernels.sampling import to_local, vec3
 from ..kernels.subpath_store import BYTES_PER_STORED_VERTEX, SubpathVertices
 from ..kernels.vcm_mis import MisConstants, PathVertex
 from ..kernels import vcm_techniques
 from .base import Method
+from .light_balance import LightPathBalance
 from .sppm import _HashSource
 from ..taichi_frontend import data_oriented
 
@@ -46,8 +47,9 @@ INITIAL_VERTICES_PER_PATH = 4    # light-vertex storage per light subpath; grows
 MAX_STORE_BYTES = 8 << 30        # refuse (a clear error) rather than fail to allocate
 PI = math.pi
 # One camera subpath's accumulators and the iteration's settings it needs at its vertices.
+# work: its non-delta vertices, connection attempts, merge candidates (the light-path balance's cost).
 CameraSubpath = ti.types.struct(L=vec3, merged=ti.types.vector(3, ti.i64), m=vcm_mis.SubpathMis, subpath=ti.i32,
-                                max_depth=ti.i32, vm_normalization=ti.f32)
+                                max_depth=ti.i32, vm_normalization=ti.f32, work=ti.types.vector(3, ti.i32))
 
 
 @data_oriented
@@ -55,9 +57,10 @@ class Vcm(Method):
     name = "vcm"
     work_unit = "paths"
     default_iterations = 64
-    independent_iterations = True     # the radius is r_1 i^((alpha-1)/2) of the index i alone
+    independent_iterations = True     # the radius is r_1 i^((alpha-1)/2) of the index i alone (fixed --light-paths)
+    balances_light_paths = True       # --light-paths auto (the default); mbe's --light-paths are chain steps
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
-               "techniques": "vcm", "light_vertex_capacity": None}
+               "techniques": "vcm", "light_vertex_capacity": None, "measure_passes": False}
     # The light vertices and their grid live for one iteration (state.py does not save them).
     TRANSIENT = ("store", "grid")
     # What trace_photon hands this visitor: every non-delta vertex, with the MIS partial sums.
@@ -69,7 +72,21 @@ class Vcm(Method):
         opts = self.options
         w, h = dscene.width, dscene.height
         self.n_pixels = w * h
-        self.n_light = int(self.n_pixels if opts["light_paths"] is None else opts["light_paths"])
+        # --light-paths auto (vcm's default): as many light subpaths per pass as the pass is worth,
+        # measured (methods/light_balance.py); a number fixes them.
+        light_paths = opts["light_paths"]
+        if light_paths == "auto" and not self.balances_light_paths:
+            raise SettingsError(f"--light-paths auto is vcm's; {self.name} takes a number (its chain steps per pass)")
+        self.balance = None
+        if self.balances_light_paths and light_paths in (None, "auto"):
+            self.n_light = self.n_pixels        # the most a pass traces: the store is sized for them
+            self.balance = LightPathBalance(self.n_pixels)
+        else:
+            self.n_light = int(self.n_pixels if light_paths is None else light_paths)
+        # Passes measured for a balance: this one's, or mbe's for its vcm passes (measure_passes).
+        self.balanced = self.balance is not None or bool(opts.get("measure_passes"))
+        # A balanced render's passes depend on the ones before: its iterations are not independent.
+        self.independent_iterations = self.balance is None
         if not 1 <= self.n_light <= 1 << 26:
             raise SettingsError(f"--light-paths must be between 1 and 2^26, got {self.n_light}")
         self.alpha = float(opts["alpha"])
@@ -93,7 +110,10 @@ class Vcm(Method):
         f = FieldGroup(self.name)
         self.consts = f.vector(5, ti.f32, ())        # MisConstants of this iteration, then r^2
         self.first_hit = f.scalar(ti.f32, self.n_pixels)
-        self.counters = f.scalar(ti.i64, 1)          # light subpaths that left a vertex
+        # light subpaths that left a vertex; light segments; camera vertices, connections, merge candidates
+        self.counters = f.scalar(ti.i64, 5)
+        self.last_estimate = f.scalar(ti.f64, self.n_pixels if self.balanced else 1)
+        self.row_spread = f.scalar(ti.f64, h)
         self.pass_light_paths = f.scalar(ti.i32, ())  # this pass's light subpaths (the pairing's modulus)
         f.finalize()
         self.fields = f
@@ -106,6 +126,11 @@ class Vcm(Method):
             self._allocate_store(int(max(capacity, 1)))
         self.vertices_last = 0
         self.store_grown = 0
+
+    @classmethod
+    def iterations_independent(cls, options: dict) -> bool:
+        return super().iterations_independent(options) and not (
+            cls.balances_light_paths and options.get("light_paths") in (None, "auto"))
 
     def _stored_paths(self) -> int:
         """Subpaths whose vertices the iteration stores: the light subpaths."""
@@ -132,6 +157,8 @@ class Vcm(Method):
     def _reset(self):
         self.film.reset()
         self.counters.fill(0)
+        if self.balance is not None:
+            self.balance = LightPathBalance(self.n_pixels)
 
     # -- the iteration -----------------------------------------------------------------
     def _radius_at(self, iteration: int) -> float:
@@ -146,8 +173,16 @@ class Vcm(Method):
         return self.r1 * (iteration + 1) ** ((self.alpha - 1.0) / 2.0)
 
     def _iterate(self):
-        self.vcm_pass(self.iteration_index, self.iteration_index)
-        self.work_done += self.n_light + self.n_pixels
+        if self.balance is None:
+            self.vcm_pass(self.iteration_index, self.iteration_index)
+            self.work_done += self.n_light + self.n_pixels
+            return
+        n = self.balance.next_light_paths()
+        spread, segments, vertices, connections, merges = self.vcm_pass(self.iteration_index, self.iteration_index, n)
+        light_rays = self.vertices_last if self.use_lt else 0.0
+        work = LightPathBalance.work(self.n_pixels, vertices, connections, segments, light_rays, merges)
+        self.balance.observe(n, spread, self.n_pixels, work)
+        self.work_done += n + self.n_pixels
 
     def vcm_pass(self, it: int, radius_index: int, n_light: int | None = None):
         """One iteration: random numbers drawn for index `it`, merging radius r_(radius_index)
@@ -181,8 +216,10 @@ class Vcm(Method):
             store, grid = self.store, (self.grid if self.grid is not None else self.fields)
         if self.store is not None:
             self.vertices_last = n
-        self._camera_pass(store, grid, self.seed_u32, it, self.max_depth, 1.0 / (PI * self.radius ** 2 * n_light))
+        measured = self._camera_pass(store, grid, self.seed_u32, it, self.max_depth,
+                                     1.0 / (PI * self.radius ** 2 * n_light))
         self.film.count_flushed()
+        return measured
 
     def _index_serial(self, n_paths: int) -> tuple[bool, bool]:
         """Whether index_vertices' loops run serially (runtime.serial_loop): over the paths,
@@ -233,9 +270,11 @@ class Vcm(Method):
             store.clear_paths(n_light, serial_paths)
         for p in range(n_light):
             key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
-            used, _ = trace_photon(self.dscene, _HashSource, key, self, p, max_segments)
+            used, dims = trace_photon(self.dscene, _HashSource, key, self, p, max_segments)
             if used:
                 ti.atomic_add(self.counters[0], 1)
+            if ti.static(self.balanced):
+                ti.atomic_add(self.counters[1], photon_segments(dims))
         n = 0
         if ti.static(isinstance(store, SubpathVertices)):
             n = self.index_vertices(store, grid, n_light, radius, serial_paths, serial_grid)
@@ -262,12 +301,35 @@ class Vcm(Method):
     # -- camera side ---------------------------------------------------------------------
     @ti.kernel
     def _camera_pass(self, store: ti.template(), grid: ti.template(), seed: ti.u32, iteration: ti.u32,
-                     max_depth: ti.i32, vm_normalization: ti.f32):
-        """One camera subpath per pixel, then the frame joins the film, in one launch."""
+                     max_depth: ti.i32, vm_normalization: ti.f32) -> ti.types.vector(5, ti.f64):
+        """One camera subpath per pixel, then the frame joins the film, in one launch. With the
+        light-path balance, returns what it measures of the pass (zeros without): the sum over
+        pixels of (this pass's estimate - the last one's)^2 in luminance, summed per row, then
+        over rows in a fixed order (a seed gives one image whatever the threads); light
+        segments, camera vertices, connections and merge candidates (the counters, then reset)."""
         self.camera_subpaths(store, grid, seed, iteration, max_depth, vm_normalization, 1)
+        w = ti.static(self.dscene.width)
         ti.loop_config(serialize=ti.static(serial_loop(self.n_pixels)))
-        for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
-            self.film.flush_pixel(y, x)
+        for y in range(self.dscene.height):
+            row = ti.f64(0.0)
+            for x in range(w):
+                if ti.static(self.balanced):
+                    e = ti.cast(self.film.frame[y, x], ti.f64).dot(ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)) \
+                        * ti.static(self.film.unit)
+                    d = e - self.last_estimate[y * w + x]
+                    self.last_estimate[y * w + x] = e
+                    row += d * d
+                self.film.flush_pixel(y, x)
+            self.row_spread[y] = row
+        total = ti.f64(0.0)
+        ti.loop_config(serialize=True)
+        for y in range(self.dscene.height):
+            total += self.row_spread[y]
+        out = ti.Vector([total, 0.0, 0.0, 0.0, 0.0], ti.f64)
+        for c in ti.static(range(1, 5)):
+            out[c] = ti.cast(self.counters[c], ti.f64)
+            self.counters[c] = 0
+        return out
 
     @ti.func
     def camera_subpaths(self, store: ti.template(), grid: ti.template(), seed, iteration, max_depth,
@@ -285,10 +347,14 @@ class Vcm(Method):
             o, d = sc.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
             acc = CameraSubpath(L=vec3(0.0), merged=ti.Vector([0, 0, 0], ti.i64),
                                 m=vcm_mis.camera_start(sc.camera_pdf_w(d), self.mis_constants()), subpath=subpath,
-                                max_depth=max_depth, vm_normalization=vm_normalization)
+                                max_depth=max_depth, vm_normalization=vm_normalization,
+                                work=ti.Vector([0, 0, 0], ti.i32))
             # Light tracing renders all but the emitters seen directly.
             camera_walk(sc, o, d, state, 1 if ti.static(self.lt_only) else max_depth, self, acc)
             self.film.add_fixed(y, x, self.film.fixed(acc.L * inv_per_pixel) + acc.merged)
+            if ti.static(self.balanced):
+                for c in ti.static(range(3)):
+                    ti.atomic_add(self.counters[2 + c], ti.cast(acc.work[c], ti.i64))
 
     # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
     roulette = MATERIAL_ROULETTE
@@ -308,14 +374,20 @@ class Vcm(Method):
         q = sc.bsdf_continuation(b)
         cv = PathVertex(p=s.p, ng=s.ng, n=n, wo=wo, beta=w.beta, length=w.length, bsdf=b, dvcm=acc.m.dvcm,
                         dvc=acc.m.dvc, dvm=acc.m.dvm)
+        if ti.static(self.balanced):
+            acc.work[0] += 1
+            if ti.static(self.use_vc):
+                acc.work[1] += self.store.path_count[acc.subpath % self.pass_light_paths[None]]
         if ti.static(self.use_vc):
             nee, connected = self._nee_and_connections(self.store, acc.subpath, cv, wo_l, t1, t2, q, state, c,
                                                        acc.max_depth)
             acc.L += w.beta * nee
             acc.L += w.beta * connected
         if ti.static(self.use_vm):
-            acc.merged += self._merge(self.store, self.grid, cv, wo_l, t1, t2, q, c, acc.max_depth,
-                                      acc.vm_normalization)
+            merged, candidates = self._merge(self.store, self.grid, cv, wo_l, t1, t2, q, c, acc.max_depth,
+                                             acc.vm_normalization)
+            acc.merged += merged
+            acc.work[2] += candidates
         return CONTINUE
 
     @ti.func
@@ -403,19 +475,21 @@ class Vcm(Method):
         """Merging (photon mapping at every non-delta camera vertex) with the light vertices
         within the radius, in fixed point: the sum does not depend on the grid's order."""
         total = ti.Vector([0, 0, 0], ti.i64)
+        candidates = 0
         r2 = self.radius_sq()
         slots, n_slots = grid.slots_near(cv.p)
         for k in range(n_slots):
             first, end = grid.slot_range(slots[k])
             for e in range(first, end):
                 if (grid.entry_pos[e] - cv.p).norm_sqr() <= r2:
+                    candidates += 1
                     slot = grid.entries[e]
                     if store.length[slot] + cv.length <= max_depth and \
                             vcm_techniques.can_merge(cv.n, store.n[slot], store.wo[slot]):
                         lv = store.vertex(slot)
                         total += self.film.fixed(vcm_techniques.merge(self.dscene, cv, wo_l, t1, t2, q, lv, c,
                                                                       vm_normalization))
-        return total
+        return total, candidates
 
     @ti.func
     def radius_sq(self) -> ti.f32:
@@ -429,11 +503,16 @@ class Vcm(Method):
         return self.film.standard_error()
 
     def progress_fields(self) -> str:
-        return f"radius {self.radius:.3g}" if self.use_vm else ""
+        fields = [f"radius {self.radius:.3g}"] if self.use_vm else []
+        if self.balance is not None:
+            fields.append(f"light paths {self.balance.next_light_paths()}")
+        return ", ".join(fields)
 
     def method_stats(self):
         c = self.counters.to_numpy()
-        return {"techniques": self.techniques, "light_paths_per_iteration": self.n_light,
+        return {"techniques": self.techniques,
+                "light_paths_per_iteration": self.n_light if self.balance is None else self.balance.stats()["light_paths_mean"],
+                "light_path_balance": None if self.balance is None else self.balance.stats(),
                 "radius": self.radius if self.use_vm else None, "initial_radius": self.r1, "alpha": self.alpha,
                 "fraction_of_light_paths_with_vertices": float(c[0]) / max(self.iterations * self.n_light, 1),
                 "light_vertices_last_iteration": self.vertices_last,

@@ -1,0 +1,100 @@
+"""vcm's light subpaths per pass, found by measuring (docs/vcm.md, "Light subpaths per pass").
+
+A vcm pass traces N light subpaths and one camera subpath per pixel. Its variance has a part
+that N does not touch (next-event estimation, emitter hits, the connections to the one light
+subpath a pixel is paired with) and a part that falls with N (merging, light tracing), but not
+as 1 / N: as N falls VCM's own weights move the light side's share from merging to the
+connections (measured: a vcm pass's light side grows 1.6-4.8x for 16x fewer light subpaths,
+docs/mbe.md, stop 38), so a model of the split predicts N badly. Its time, too, is not split
+the way the techniques are: the connections are camera work.
+
+So the balance measures the thing it minimises, variance x work per pass, at two N a factor
+sqrt(2) apart (PROBE), and moves between them:
+- passes run in blocks of two at the same N, alternating the upper and the lower probe; the
+  second pass of a block against the first estimates the variance of one pass at that N
+  (Var(X1 - X2) = 2 V, summed over the pixels in luminance);
+- work is counted (so that a seed gives one image): camera rays, connections, light segments
+  and light-tracing rays, merge candidates, in the cost model fitted to measured time per
+  pass at three N on seven rooms (tools/vcm_pass_split.py; docs/mbe.md, stop 38);
+- once each probe has BLOCKS estimates, the centre moves a factor sqrt(2) toward the probe
+  with the smaller variance x work, and the sums start again (the variance changes as the
+  radius shrinks; both probes are interleaved, so they see the same radius).
+The centre dithers around the optimum, where the product is flat (a factor 2^(1/4) off costs
+under 2 %), and follows it as the radius shrinks.
+"""
+from __future__ import annotations
+
+import math
+
+# The fitted cost model (tools/vcm_pass_split.py): time per pass ~ CAMERA_WEIGHT x (a ray per
+# camera subpath, three per non-delta camera vertex) + connections + light segments +
+# light-tracing rays + MERGE_WEIGHT x merge candidates.
+CAMERA_WEIGHT = 0.78
+MERGE_WEIGHT = 0.225
+PROBE = 2.0 ** 0.25       # the probes lie this factor above and below the centre
+BLOCKS = 12               # variance estimates per probe before the centre moves
+FEWEST = 64               # the centre's range: [most / FEWEST, most]
+START = 4                 # the centre starts at most / START, two octaves from the top, four from the bottom
+
+
+class LightPathBalance:
+    """The light subpaths of each vcm pass, between most / FEWEST and `most` (the store's)."""
+
+    def __init__(self, most: int):
+        self.most = int(most)
+        self.fewest = max(1, self.most // FEWEST)
+        self.log2_centre = math.log2(max(self.most / START, self.fewest))
+        self.phase = 0                 # 0, 1: upper probe; 2, 3: lower probe
+        self.sums = [0.0, 0.0, 0.0, 0.0]   # variance, work of the upper probe; of the lower
+        self.blocks = [0, 0]
+        self.moves = 0
+        self.reversals = 0             # moves against the one before: each lengthens the window
+        self.last_step = 0.0
+        self.passes = 0
+        self.light_paths_sum = 0.0
+        self.last_ratio = 0.0          # lower probe's variance x work over the upper's, at the last move
+
+    def probe(self, side: int) -> int:
+        n = 2.0 ** self.log2_centre * (PROBE if side == 0 else 1.0 / PROBE)
+        return int(min(max(round(n), self.fewest), self.most))
+
+    def next_light_paths(self) -> int:
+        """The light subpaths of the next pass."""
+        return self.probe(self.phase // 2)
+
+    def observe(self, n_light: int, spread: float, n_pixels: int, work: float) -> None:
+        """The pass just made: its light subpaths, the sum over pixels of (its estimate - the
+        last pass's)^2 in luminance, and its counted work."""
+        self.passes += 1
+        self.light_paths_sum += n_light
+        side, second = self.phase // 2, self.phase % 2 == 1
+        self.phase = (self.phase + 1) % 4
+        if not second or not (math.isfinite(spread) and math.isfinite(work)):
+            return
+        self.sums[2 * side] += 0.5 * spread / n_pixels
+        self.sums[2 * side + 1] += work
+        self.blocks[side] += 1
+        if min(self.blocks) >= BLOCKS * (1 + self.reversals):
+            upper = self.sums[0] * self.sums[1]
+            lower = self.sums[2] * self.sums[3]
+            if upper + lower > 0.0:
+                self.last_ratio = lower / upper
+                step = -0.5 if lower < upper else 0.5
+                self.reversals += int(step * self.last_step < 0.0)
+                self.last_step = step
+                self.log2_centre = min(max(self.log2_centre + step, math.log2(self.fewest)), math.log2(self.most))
+                self.moves += 1
+            self.sums = [0.0, 0.0, 0.0, 0.0]
+            self.blocks = [0, 0]
+
+    @staticmethod
+    def work(n_pixels: int, camera_vertices: float, connections: float, segments: float, light_rays: float,
+             merges: float) -> float:
+        """A pass's work in the fitted cost model, from its counts."""
+        return (CAMERA_WEIGHT * (n_pixels + 3.0 * camera_vertices) + connections + segments + light_rays
+                + MERGE_WEIGHT * merges)
+
+    def stats(self) -> dict:
+        return {"centre": 2.0 ** self.log2_centre, "moves": self.moves, "reversals": self.reversals,
+                "light_paths_mean": self.light_paths_sum / self.passes if self.passes else None,
+                "last_lower_over_upper": self.last_ratio or None}
