@@ -18,9 +18,14 @@ sqrt(2) apart (PROBE), and moves between them:
   pass at three N on seven rooms (tools/vcm_pass_split.py; docs/mbe.md, stop 38);
 - once each probe has BLOCKS estimates, the centre moves a factor sqrt(2) toward the probe
   with the smaller variance x work, and the sums start again (the variance changes as the
-  radius shrinks; both probes are interleaved, so they see the same radius).
-The centre dithers around the optimum, where the product is flat (a factor 2^(1/4) off costs
-under 2 %), and follows it as the radius shrinks.
+  radius shrinks; both probes are interleaved, so they see the same radius); each move
+  against the one before lengthens that window by BLOCKS, so the centre settles near the
+  optimum, where the product is flat (a probe a factor 2^(1/4) off costs under 2 %), instead
+  of dithering on noise.
+vcm uses it for --light-paths auto (its default), mbe for its vcm passes. The balance sees
+variance, not the merging radius's bias, which falls with the number of passes: where that
+bias dominates (the caustic, the attic at 15 s) a fixed quarter of the pixels did better
+(docs/vcm.md). tools/vcm_pass_work.py sets the counted work against measured time.
 """
 from __future__ import annotations
 
