@@ -185,16 +185,18 @@ class PassChoice:
         # K = 1 in its first passes, 1.1x at K = 8).
         chain = min((v_c / kk + v_p / steps) * self.work(effort, kk, steps)[0] for kk in range(1, most_k + 1))
         # A vcm pass traces one camera subpath per pixel: its V_c and V_u are K = 1's where
-        # measured. It is judged at the light subpaths N* it will trace (the balance's). Both
-        # halves of that prediction err as N falls, in opposite directions: the cost model
-        # counts connections as light work, so a pass of fewer light subpaths looks cheaper
-        # than it is (the cellar at 1,024 of 4,096: 0.37x the time predicted, 0.79x measured),
-        # and V_u / N has its light side grow as 1 / N where VCM's weights move to the
+        # measured. It is judged at the model's N* (stop 38), though since stop 39 it traces
+        # what vcm's light-path balance measures best (methods/light_balance.py). Both halves
+        # of the prediction err as N falls, in opposite directions: the cost model counts
+        # connections as light work, so a pass of fewer light subpaths looks cheaper than it
+        # is (the cellar at 1,024 of 4,096: 0.37x the time predicted, 0.79x measured), and
+        # V_u / N has its light side grow as 1 / N where VCM's weights move to the
         # connections, whose variance does not grow (measured: 1.4x for 4x fewer against 4x).
-        # Together they err by about 30 % either way on three rooms measured, and judged at
-        # N* mbe beats vcm by 7-25 % in the six rooms where the measurement pairs find the
-        # break-even at K = 2 to 4 (the held-out cellar 1.05x -> 0.93x, corner room 1.14x ->
-        # 0.87x; docs/mbe.md, stop 38).
+        # Together they err by about 30 % either way on three rooms measured (docs/mbe.md,
+        # stop 38). Judged at N*, mbe beat the old vcm by 7-25 % where the measurement pairs
+        # find the break-even at K = 2 to 4; against vcm with its own balance it does not
+        # (docs/mbe.md, stop 39): comparing with the vcm passes' measured variance x work is
+        # the lead.
         v_c1 = self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count >= MEASURE_PAIRS else v_c
         v_u1 = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq if self.uniform_passes_k1 >= MEASURE_PAIRS else v_u
         vcm_at_k = (v_c + v_u / self.n_light) * self.work(effort, 1, steps)[1]
