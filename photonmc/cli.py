@@ -173,10 +173,12 @@ def _add_vcm_options(parser):
                         "ladders, and gives the uniform proposals at least that share of mbe's steps (the "
                         "guided methods mutate with probability 1 - share); 0: the chains' estimate alone; "
                         "1: the uniform proposals' alone (docs/mbe.md, docs/guiding.md)")
-    g.add_argument("--vcm-passes", choices=["auto", "off"],
+    g.add_argument("--vcm-passes", choices=["auto", "measured", "off"],
                    help="mbe: auto (default) makes a pass a vcm pass (independent light subpaths, no chains) "
                         "where its chain passes predict that a vcm pass removes more error per unit of work; "
-                        "off: chain passes only (docs/mbe.md, 'vcm passes where the chains do not pay')")
+                        "measured: the same choice from both kinds' measured variance per pass (vcm passes "
+                        "measured first where chain passes are predicted to win; an experiment, docs/mbe.md, "
+                        "stop 40); off: chain passes only (docs/mbe.md, 'vcm passes where the chains do not pay')")
     g.add_argument("--balance", choices=["mse", "relmse"],
                    help="mbe: what the effort balance behind --camera-paths auto minimises: the image's MSE "
                         "(default) or its relative MSE, each pixel's error weighted by 1 / (its running mean^2 "

@@ -45,3 +45,18 @@ def test_a_pass_that_measured_nothing_moves_nothing():
     for _ in range(400):
         balance.observe(balance.next_light_paths(), 0.0, PIXELS, 100.0)
     assert balance.stats()["centre"] == start and balance.stats()["moves"] == 0
+
+
+def test_a_pass_variance_is_reported_once_measured():
+    """mbe's pass choice reads the variance of a vcm pass from the balance (pass_variance):
+    None until MEASURED_AFTER estimates (one per two passes) are in, then the running mean of
+    the estimates, here the analytic A + B / N at the probes."""
+    from photonmc.methods.light_balance import MEASURED_AFTER
+    balance, a, b = LightPathBalance(PIXELS), 1.0, 400.0
+    seen = []
+    for _ in range(2 * MEASURED_AFTER):
+        n = balance.next_light_paths()
+        seen.append(a + b / n)
+        assert balance.pass_variance() is None
+        balance.observe(n, 2.0 * (a + b / n) * PIXELS, PIXELS, 4000.0 + n)
+    assert min(seen) <= balance.pass_variance() <= max(seen)

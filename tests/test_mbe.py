@@ -184,6 +184,96 @@ def test_a_vcm_pass_is_judged_at_the_light_subpaths_it_traces():
         assert c.ratio > at_all if balanced else c.ratio == pytest.approx(at_all)
 
 
+def test_a_vcm_pass_measured_replaces_its_prediction():
+    """--vcm-passes measured: once vcm's light-path balance has measured the vcm passes' variance, the kinds are
+    compared with it, at the light subpaths the passes trace, and with their connections
+    counted once per pixel (a pixel's camera subpath connects to one light subpath whatever
+    N): a vcm pass of a quarter of the light subpaths then costs more than a quarter of the
+    light side's work (docs/mbe.md, stop 40)."""
+    from photonmc.methods.pass_choice import PassChoice
+    n_light, steps, r2, v_c, v_p, v_u = 4096, 4096, 0.01, 0.01, 0.001, 2.0
+    effort = _KnownEffort(v_c, v_p, camera_work=20.0 * n_light)
+    c = PassChoice(n_light, True, n_pixels=n_light, measured=True)
+    for _ in range(8):
+        c.observe_chain_pass(steps, 1, traced=steps, light_work=3.0 * steps, merges=0.5 * steps,
+                             uniform_variance=v_u, radius_sq=r2, connections=1.0 * steps)
+    chain = min((v_c / k + v_p / steps) * c.work(effort, k, steps)[0] for k in range(1, 9))
+    n = n_light // 4
+    c.next_is_vcm(effort, 1, 8, steps, r2, n, vcm_variance=0.02)
+    assert c.vcm_measured and c.ratio == pytest.approx(chain / (0.02 * c.work(effort, 1, steps, n, True)[1]))
+    per_subpath, per_pixel = c.work_parts(effort, 1, steps, n), c.work_parts(effort, 1, steps, n, True)
+    # 3 rays a light subpath, one of them a connection: 2 per light subpath + 1 per pixel
+    merges = per_subpath["vcm_light"] / n - 3.0
+    assert per_pixel["vcm_light"] == pytest.approx(n * (2.0 + merges) + n_light)
+    assert per_subpath["vcm_light"] == pytest.approx(n * (3.0 + merges))
+    # with the chain passes measured as well (batch means), both sides are measured, at the
+    # chain passes' K
+    c.next_is_vcm(effort, 3, 8, steps, r2, n, vcm_variance=0.02, chain_variance=0.005)
+    assert c.chain_measured and c.ratio == pytest.approx(0.005 * c.work(effort, 3, steps)[0]
+                                                         / (0.02 * c.work(effort, 1, steps, n, True)[1]))
+    c.next_is_vcm(effort, 1, 8, steps, r2, n)
+    assert not c.vcm_measured and not c.chain_measured
+    # --vcm-passes auto (the default) keeps the prediction whatever is measured
+    c.measured = False
+    c.next_is_vcm(effort, 1, 8, steps, r2, n, vcm_variance=0.02, chain_variance=0.005)
+    assert not c.vcm_measured
+
+
+def test_vcm_passes_are_measured_before_chain_passes_are_preferred_to_them():
+    """--vcm-passes measured: where chain passes are predicted to win at K <= MEASURE_MAX_K,
+    vcm passes take EXPLORE_SHARE of the work until their variance is measured (vcm_variance
+    given); then the measured ratio decides. At a larger K, with --vcm-passes off, or auto (the
+    prediction alone), none is made."""
+    from photonmc.methods.pass_choice import EXPLORE_SHARE, MEASURE_MAX_K, PassChoice
+    steps, r2 = 4096, 0.01
+    effort = _KnownEffort(0.01, 1e-6, camera_work=20.0 * steps)    # chains predicted to win
+
+    def kinds(k, enabled=True, measured=None, passes=400, mode=True):
+        c = PassChoice(steps, enabled, measured=mode)
+        out = ""
+        for _ in range(passes):
+            if c.next_is_vcm(effort, k, k, steps, r2, steps // 4, vcm_variance=measured):
+                out += "v"
+            else:
+                out += "c"
+                c.observe_chain_pass(steps, k, traced=steps, light_work=3.0 * steps, merges=0.5 * k * steps,
+                                     uniform_variance=2.0, radius_sq=r2, connections=1.0 * steps)
+        return c, out
+
+    c, out = kinds(2)
+    assert c.ratio < 1.0 and out.startswith("cccc") and "v" in out[4:12]
+    share = c.explore_vcm_work / (c.explore_vcm_work + c.explore_chain_work)
+    assert EXPLORE_SHARE * 0.8 < share < EXPLORE_SHARE * 1.2, share
+    assert kinds(MEASURE_MAX_K + 1)[1] == "c" * 400
+    assert kinds(2, enabled=False)[1] == "c" * 400
+    assert kinds(2, mode=False)[1] == "c" * 400
+    assert kinds(2, measured=1e3)[1] == "c" * 400          # measured far worse: chain passes
+    assert kinds(2, measured=1e-9)[1].count("v") > 300     # measured far better: vcm passes
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.5])
+def test_batch_means_see_the_correlation_between_chain_passes(rho):
+    """BatchMeansVariance on passes whose pixels follow AR(1) with coefficient rho and unit
+    variance: BATCH x the variance of batch means is 1 + 2 sum_k (1 - k / B) rho^k (the
+    variance per pass as it counts in a mean of B passes; 1 for independent passes, 2.50 at
+    rho 0.5, where the spread of consecutive passes would say 0.5)."""
+    from photonmc.methods.pass_choice import BatchMeansVariance
+    rng = np.random.default_rng(5)
+    pixels, b = 2000, BatchMeansVariance.BATCH
+    measured = BatchMeansVariance(pixels)
+    x = rng.normal(size=pixels)
+    for batch in range(96):
+        total = np.zeros(pixels)
+        for _ in range(b):
+            x = rho * x + math.sqrt(1.0 - rho * rho) * rng.normal(size=pixels)
+            total += x
+        measured.observe_batch(total)
+        if batch + 1 < BatchMeansVariance.AFTER:
+            assert measured.pass_variance() is None
+    expected = 1.0 + 2.0 * sum((1.0 - k / b) * rho ** k for k in range(1, b))
+    assert measured.pass_variance() == pytest.approx(expected, rel=0.05)
+
+
 def _measured_kinds(choice, ratio, k, passes, v_c1=0.005, ratio_at_k=None):
     """K of each of `passes` chain passes that PassChoice asks for at a fixed ratio (and ratio
     predicted with V_c at K, the same by default) and balance K, each K = 1 pair reporting a
@@ -248,6 +338,19 @@ def test_balanced_vcm_passes_still_reach_the_furnace_radiance(write_scene):
     passes = r.stats["passes"]
     print(passes)
     assert passes["vcm_passes"] > 100 and passes["vcm_pass_light_paths_mean"] < 0.95 * 256
+    lum, expected = luminance(r.image), furnace_expectation(3)
+    assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected, lum.mean()
+
+
+def test_measured_pass_choice_keeps_the_furnace(write_scene):
+    """--vcm-passes measured (methods/pass_choice.py; docs/mbe.md, stop 40): in the furnace at
+    16x16 the vcm passes get measured (by vcm's light-path balance) and win, chain passes keep
+    their share, and the image still reaches the analytic radiance."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    r = render(scene, 300, seed=2, max_depth=3, camera_paths=1, vcm_passes="measured")
+    passes = r.stats["passes"]
+    print(passes)
+    assert passes["vcm_variance_measured"] and passes["vcm_passes"] > 100 and passes["chain_passes"] >= 4
     lum, expected = luminance(r.image), furnace_expectation(3)
     assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected, lum.mean()
 

@@ -38,6 +38,11 @@ CAMERA_WEIGHT = 0.78
 MERGE_WEIGHT = 0.225
 PROBE = 2.0 ** 0.25       # the probes lie this factor above and below the centre
 BLOCKS = 12               # variance estimates per probe before the centre moves
+# The variance of a pass, as mbe's pass choice reads it (methods/pass_choice.py): the mean of
+# all estimates so far, reported once MEASURED_AFTER are in. The spread of two passes is
+# heavy-tailed (the caustic: 0.005 for 300 estimates, then one of 40), so a mean over a recent
+# window forgets the rare large ones that make the variance (docs/mbe.md, stop 40).
+MEASURED_AFTER = 16
 FEWEST = 64               # the centre's range: [most / FEWEST, most]
 START = 4                 # the centre starts at most / START, two octaves from the top, four from the bottom
 
@@ -58,6 +63,8 @@ class LightPathBalance:
         self.passes = 0
         self.light_paths_sum = 0.0
         self.last_ratio = 0.0          # lower probe's variance x work over the upper's, at the last move
+        self.variance_mean = 0.0       # a pass's variance, mean over all estimates (pass_variance)
+        self.estimates = 0
 
     def probe(self, side: int) -> int:
         n = 2.0 ** self.log2_centre * (PROBE if side == 0 else 1.0 / PROBE)
@@ -76,7 +83,10 @@ class LightPathBalance:
         self.phase = (self.phase + 1) % 4
         if not second or not (math.isfinite(spread) and math.isfinite(work)):
             return
-        self.sums[2 * side] += 0.5 * spread / n_pixels
+        variance = 0.5 * spread / n_pixels
+        self.estimates += 1
+        self.variance_mean += (variance - self.variance_mean) / self.estimates
+        self.sums[2 * side] += variance
         self.sums[2 * side + 1] += work
         self.blocks[side] += 1
         if min(self.blocks) >= BLOCKS * (1 + self.reversals):
@@ -91,6 +101,11 @@ class LightPathBalance:
                 self.moves += 1
             self.sums = [0.0, 0.0, 0.0, 0.0]
             self.blocks = [0, 0]
+
+    def pass_variance(self) -> float | None:
+        """The variance of one pass (luminance, mean over pixels) at about the centre's light
+        subpaths, once MEASURED_AFTER estimates are in."""
+        return self.variance_mean if self.estimates >= MEASURED_AFTER else None
 
     @staticmethod
     def work(n_pixels: int, camera_vertices: float, connections: float, segments: float, light_rays: float,

@@ -80,7 +80,7 @@ from .base import MethodSettings
 from .effort import EffortBalance, UniformWeight, uniform_weight_option
 from .guided import LADDER_BURN_IN
 from .light_balance import LightPathBalance
-from .pass_choice import PassChoice
+from .pass_choice import BatchMeansVariance, PassChoice
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 from ..taichi_frontend import data_oriented
 
@@ -225,6 +225,7 @@ class Mbe(Vcm):
         self.uniform_frame = f.vector(3, ti.i64, (2, h, w))
         self.uniform_probe = f.scalar(ti.i32, c)         # 1 while ladder c probes a uniform proposal
         self.last_estimate = f.scalar(ti.f64, w * h)     # last iteration's luminance per pixel (effort)
+        self.batch_sum = f.scalar(ti.f64, w * h)         # the same summed over a batch of chain passes
         self.row_sums = f.vector(4, ti.f64, h)            # _end_pass's effort sums per image row
         self.b_mis = f.scalar(ti.f32, self.n_levels)     # previous pass's normalisations (MIS only)
         self.pre_scale = f.scalar(ti.f32, self.n_levels)  # previous pass's level scales (see deposit)
@@ -243,12 +244,12 @@ class Mbe(Vcm):
         self.list_stats = f.scalar(ti.i64, 4)           # deposits from a list, overflows, entries and lists adopted
         f.finalize()
         self.chain_fields = f
-        if opts["vcm_passes"] not in ("auto", "off"):
-            raise SettingsError(f"--vcm-passes must be 'auto' or 'off', got '{opts['vcm_passes']}'")
+        if opts["vcm_passes"] not in ("auto", "measured", "off"):
+            raise SettingsError(f"--vcm-passes must be 'auto', 'measured' or 'off', got '{opts['vcm_passes']}'")
         # vcm passes (methods/pass_choice.py): a Vcm that renders into this film, its light
         # subpaths --light-paths, its radius set by this method's index.
         self.independent = None
-        if opts["vcm_passes"] == "auto":
+        if opts["vcm_passes"] in ("auto", "measured"):
             self.independent = Vcm(dscene, MethodSettings(settings.seed, settings.max_depth, {
                 "light_paths": self.n_light, "alpha": self.alpha, "radius": opts["radius"],
                 "radius_pixels": opts["radius_pixels"], "measure_passes": True}))
@@ -300,7 +301,8 @@ class Mbe(Vcm):
 
     def _reset_chains(self):
         fill_fields([(self.b_mis, 1.0), (self.pre_scale, 1.0), (self.light_counters, 0), (self.light_frame, 0),
-                     (self.uniform_frame, 0), (self.list_stats, 0), (self.last_estimate, 0.0)])
+                     (self.uniform_frame, 0), (self.list_stats, 0), (self.last_estimate, 0.0),
+                     (self.batch_sum, 0.0)])
         # beta, the uniform proposals' share of the light side (methods/effort.py)
         self.beta = UniformWeight(self.options["uniform_weight"])
         if self.camera_paths_auto:
@@ -310,7 +312,10 @@ class Mbe(Vcm):
         self.effort = EffortBalance(self.n_pixels, self.n_light, self.alpha, trim_camera=False)
         self.light_work_last = np.zeros(5)      # light_counters after the last pass
         self.measured_last = False              # the last chain pass was a measurement pass at K = 1
-        self.pass_choice = PassChoice(self.n_light, self.independent is not None)
+        self.pass_choice = PassChoice(self.n_light, self.independent is not None, self.n_pixels,
+                                      measured=self.options["vcm_passes"] == "measured")
+        self.chain_batches = BatchMeansVariance(self.n_pixels)
+        self.batch_passes = 0
         # the vcm passes' light subpaths, measured as vcm's own are (methods/light_balance.py)
         self.light_balance = LightPathBalance(self.n_light)
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
@@ -355,7 +360,8 @@ class Mbe(Vcm):
     def _iterate(self):
         it = self.iteration_index
         if self.pass_choice.next_is_vcm(self.effort, self.camera_paths, self.max_camera_paths, self.steps_last,
-                                        self.radius ** 2, self.light_balance.next_light_paths()):
+                                        self.radius ** 2, self.light_balance.next_light_paths(),
+                                        self.light_balance.pass_variance(), self.chain_batches.pass_variance()):
             self._vcm_pass(it)
         else:
             self._chain_pass(it)
@@ -439,6 +445,12 @@ class Mbe(Vcm):
         sums = self._end_pass(*frame_scales, *sum_scales, self.relative_balance,
                               max(self.film.film.samples_per_pixel, 0))
         self.film.count_flushed()
+        if self.pass_choice.measured:       # the chain passes' batch means (pass_choice.BatchMeansVariance)
+            self.batch_passes += 1
+            if self.batch_passes == BatchMeansVariance.BATCH:
+                self.chain_batches.observe_batch(self.batch_sum.to_numpy())
+                self.batch_sum.fill(0.0)
+                self.batch_passes = 0
         self._observe_effort(steps, k, n, sums, beta, uniform_halves, uniform_counts, tallies["extra"][0])
         # The next pass's MIS normalisations, level scales and mutation sizes stay on the host
         # until the next _camera_side writes them (one launch less per iteration).
@@ -494,7 +506,7 @@ class Mbe(Vcm):
         s_chains, s_uniform, s_product = float(sums[1]), float(sums[2]), float(sums[3])
         s_light = (1.0 - beta) ** 2 * s_chains + beta ** 2 * s_uniform + 2.0 * beta * (1.0 - beta) * s_product
         light_work = light_counters.astype(np.float64)
-        traced, segments, rays, merges, _ = light_work - self.light_work_last
+        traced, segments, rays, merges, connections = light_work - self.light_work_last
         self.light_work_last = light_work
         n_even, n_odd = (self.n_chains + 1) // 2, self.n_chains // 2
         # Var(t_even - t_odd) = (V_p / n) (c / n_even + c / n_odd) for c ladders in all; with
@@ -518,7 +530,7 @@ class Mbe(Vcm):
             # one uniform proposal's variance: Var(U_even - U_odd) = V_u (1/n_even + 1/n_odd)
             uniform_variance = s_uniform / self.n_pixels / (1.0 / uniform_counts[0] + 1.0 / uniform_counts[1])
         self.pass_choice.observe_chain_pass(steps, k, traced, segments + rays, merges, uniform_variance,
-                                            self.radius ** 2)
+                                            self.radius ** 2, connections)
         if self.camera_paths_auto and k == self.camera_paths:
             self.camera_paths = self.effort.next_camera_paths(steps, self.max_camera_paths)
         if n_odd > 0 and min(uniform_halves) > 0.0:
@@ -578,6 +590,7 @@ class Mbe(Vcm):
                 i = y * w + x
                 d = e - self.last_estimate[i]
                 self.last_estimate[i] = e
+                self.batch_sum[i] += e
                 h = (f0e * even0 + f1e * even1 - f0o * odd0 - f1o * odd1).dot(y_weights)
                 hu = (ue * even_u - uo * odd_u).dot(y_weights)
                 row += weight * ti.Vector([d * d, h * h, hu * hu, h * hu], ti.f64)

@@ -42,6 +42,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .effort import DEPOSIT_WORK
 
 # Time per pass ~ CAMERA_WORK_WEIGHT x camera work + light work + CHAIN_STEP_WORK x chain steps,
@@ -85,6 +87,13 @@ MIN_PASSES_FOR_BALANCE = 16
 # MEASURE_AFTER chain passes, once K has settled (it moves by at most 2x a pass). Measured
 # without those two limits, the Cornell box (K 14) made 8 passes at K = 1 while its K rose,
 # and mbe went from 0.75x vcm's RMSE to 0.86x.
+# Until vcm passes are measured (light_balance.MEASURED_AFTER variance estimates, from twice
+# as many passes), where chain passes are predicted to win at K <= MEASURE_MAX_K, vcm passes
+# take this share of the work: the prediction of a vcm pass's variance from chain passes
+# erred 1.3-2x high where the kinds mix (docs/mbe.md, stop 40), and without vcm passes there is
+# nothing to correct it with (the light shaft made its first 340 passes chain passes, at 2.2x
+# a vcm pass's time for the same variance per pass).
+EXPLORE_SHARE = 0.25
 MEASURE_BAND = 0.7
 MEASURE_PAIRS = 8
 MEASURE_EVERY = 32
@@ -92,9 +101,43 @@ MEASURE_MAX_K = 4
 MEASURE_AFTER = 16
 
 
+class BatchMeansVariance:
+    """The variance of one chain pass, as it counts in the film: the chains carry their states
+    from pass to pass (the warm start), so consecutive passes are correlated, and neither the
+    spread of two of them nor the even against the odd ladders of one sees it. The means of
+    batches of BATCH consecutive chain passes are nearly independent: BATCH x their variance
+    (per pixel, over batches; mean over pixels) is the variance per pass with the correlation
+    included (the batch-means estimator of MCMC output analysis). Measured where the effort
+    balance's prediction V_c / K + V_p / n was low: the caustic (docs/mbe.md, stop 40)."""
+    BATCH = 8
+    AFTER = 8           # batches before the variance is reported
+
+    def __init__(self, n_pixels: int):
+        self.batches = 0
+        self.mean = np.zeros(n_pixels)      # per pixel, over batches (Welford)
+        self.m2 = np.zeros(n_pixels)
+
+    def observe_batch(self, batch_sum) -> None:
+        """The per-pixel luminance summed over BATCH consecutive chain passes."""
+        batch_mean = batch_sum / self.BATCH
+        self.batches += 1
+        delta = batch_mean - self.mean
+        self.mean += delta / self.batches
+        self.m2 += delta * (batch_mean - self.mean)
+
+    def pass_variance(self) -> float | None:
+        if self.batches < self.AFTER:
+            return None
+        return float(self.BATCH * (self.m2 / (self.batches - 1)).mean())
+
+
 class PassChoice:
-    def __init__(self, n_light: int, enabled: bool):
+    def __init__(self, n_light: int, enabled: bool, n_pixels: int | None = None, measured: bool = False):
         self.n_light, self.enabled = int(n_light), bool(enabled)
+        # --vcm-passes measured: the kinds compared by their measured variances (vcm passes
+        # measured first where needed, EXPLORE_SHARE), vcm work with the connections per pixel
+        self.measured = bool(measured)
+        self.n_pixels = int(n_light if n_pixels is None else n_pixels)
         self.uniform_r2_sum = 0.0       # V_u x r^2 summed over chain passes (V_u grows as 1/r^2)
         self.uniform_passes = 0
         self.uniform_r2_sum_k1 = 0.0    # the same, over chain passes of K = 1 only
@@ -102,12 +145,18 @@ class PassChoice:
         self.traced = 0.0               # light subpaths traced by chain passes
         self.steps = 0.0                # chain steps
         self.light_work = 0.0           # their segments and shadow rays
+        self.connections = 0.0          # of those shadow rays, the connections' (to a camera subpath)
         self.merges_per_k = 0.0         # merge candidates / K (they grow with the camera vertices)
         self.chain_passes = 0
         self.vcm_passes = 0
         self.vcm_work_since_chain = 0.0  # work of the vcm passes since the last chain pass
         self.ratio = None               # last predicted (chain variance x work) / (vcm's)
         self.ratio_at_k = None          # the same with the vcm pass's V_c and V_u taken at the chain passes' K
+        self.vcm_measured = False       # the last ratio used the vcm passes' measured variance
+        self.chain_measured = False     # ... and the chain passes' (batch means)
+        self.explore_vcm_work = 0.0     # work of the vcm passes made to measure them, and of the
+        self.explore_chain_work = 0.0   # chain passes made meanwhile (EXPLORE_SHARE)
+        self.explored_passes = 0
         # N*: the light subpaths a vcm pass is judged at (the passes trace the light-path balance's)
         self.vcm_light_paths = self.n_light
         self.vcm_light_paths_sum = 0.0  # over the vcm passes made
@@ -140,15 +189,17 @@ class PassChoice:
         self.camera_k1_count += 1
 
     def observe_chain_pass(self, steps: int, k: int, traced: float, light_work: float, merges: float,
-                           uniform_variance: float | None, radius_sq: float) -> None:
+                           uniform_variance: float | None, radius_sq: float, connections: float = 0.0) -> None:
         """A chain pass: its steps, K, light subpaths traced, their segments and shadow rays,
-        merge candidates, and the variance of one uniform proposal's splat list (mean over
-        pixels, luminance), None where the pass had too few uniform proposals to tell."""
+        merge candidates, the variance of one uniform proposal's splat list (mean over
+        pixels, luminance), None where the pass had too few uniform proposals to tell, and
+        the connections' shadow rays among light_work."""
         self.chain_passes += 1
         self.vcm_work_since_chain = 0.0
         self.steps += steps
         self.traced += traced
         self.light_work += light_work
+        self.connections += connections
         self.merges_per_k += merges / k
         if uniform_variance is not None:
             self.uniform_r2_sum += uniform_variance * radius_sq
@@ -157,22 +208,45 @@ class PassChoice:
                 self.uniform_r2_sum_k1 += uniform_variance * radius_sq
                 self.uniform_passes_k1 += 1
 
-    def next_is_vcm(self, effort, k: int, most_k: int, steps: int, radius_sq: float, n_light: int) -> bool:
+    def next_is_vcm(self, effort, k: int, most_k: int, steps: int, radius_sq: float, n_light: int,
+                    vcm_variance: float | None = None, chain_variance: float | None = None) -> bool:
         """Whether the next pass should be a vcm pass, against a chain pass of `steps` steps
         and K camera subpaths per pixel (at most `most_k`); a vcm pass would trace n_light
-        light subpaths (vcm's light-path balance; the prediction is made at N*, below)."""
-        self.ratio = self._ratio(effort, most_k, steps, radius_sq)
+        light subpaths (vcm's light-path balance), and vcm_variance is the variance of a vcm
+        pass measured on those made (None until enough are: the prediction, below)."""
+        self.ratio = self._ratio(effort, most_k, steps, radius_sq, n_light, vcm_variance, chain_variance, k)
+        if self._exploring(k, vcm_variance):
+            if self.explore_vcm_work >= EXPLORE_SHARE * (self.explore_vcm_work + self.explore_chain_work):
+                self.explore_chain_work += self.work(effort, k, steps)[0]
+                return False
+            self.explore_vcm_work += self.work(effort, k, steps, n_light, connections_per_pixel=True)[1]
+            self.explored_passes += 1
+            self.vcm_passes += 1
+            self.vcm_light_paths_sum += n_light
+            return True
         if not (self.enabled and self.ratio is not None and self.ratio > 1.0):
             return False
+        # Measured (--vcm-passes measured), the share is kept in the cost model that counts a
+        # vcm pass's connections per pixel (work_parts), the one that follows measured time.
         chain_work = self.work(effort, k, steps)[0]
         if self.vcm_work_since_chain * CHAIN_WORK_SHARE >= chain_work * (1.0 - CHAIN_WORK_SHARE):
             return False
         self.vcm_passes += 1
         self.vcm_light_paths_sum += n_light
-        self.vcm_work_since_chain += self.work(effort, k, steps, n_light)[1]
+        self.vcm_work_since_chain += self.work(effort, k, steps, n_light, connections_per_pixel=self.measured)[1]
         return True
 
-    def _ratio(self, effort, most_k: int, steps: int, radius_sq: float) -> float | None:
+    def _exploring(self, k: int, vcm_variance: float | None) -> bool:
+        """Whether vcm passes are still to be measured: until vcm's light-path balance has
+        measured their variance, where the chain passes' K is at most MEASURE_MAX_K (a vcm
+        pass, one camera subpath per pixel, joins the film at the weight of a chain pass of
+        K, so more would cost more than it tells), and the prediction is not already for them."""
+        return (self.enabled and self.measured and vcm_variance is None and self.chain_passes >= MIN_CHAIN_PASSES
+                and k <= MEASURE_MAX_K and self.ratio is not None and self.ratio <= 1.0)
+
+    def _ratio(self, effort, most_k: int, steps: int, radius_sq: float, n_light: int | None = None,
+               vcm_variance: float | None = None, chain_variance: float | None = None,
+               k: int = 1) -> float | None:
         shares = effort.shares()
         if (self.chain_passes < MIN_CHAIN_PASSES or shares is None or self.uniform_passes == 0
                 or self.traced <= 0 or effort.sum_camera_paths <= 0 or not radius_sq > 0):
@@ -197,6 +271,21 @@ class PassChoice:
         # find the break-even at K = 2 to 4; against vcm with its own balance it does not
         # (docs/mbe.md, stop 39): comparing with the vcm passes' measured variance x work is
         # the lead.
+        if self.measured and vcm_variance is not None and n_light is not None:
+            # Measured (stop 40): the variance of the vcm passes made, from vcm's light-path
+            # balance's pairs, at the light subpaths it traces, and their work with the
+            # connections counted per pixel. Predicted from the chain passes, a vcm pass's
+            # variance came out 1.3-2x high where the kinds mix (the light shaft: V_c at K = 1
+            # alone 0.011-0.018, a vcm pass 0.009 measured), which the cost model's error the
+            # other way hid (docs/mbe.md, "The vcm passes measured").
+            # The chain pass measured too where it can be (BatchMeansVariance), at its K.
+            self.vcm_measured = True
+            self.chain_measured = chain_variance is not None
+            if self.chain_measured:
+                chain = chain_variance * self.work(effort, k, steps)[0]
+            vcm = vcm_variance * self.work(effort, 1, steps, n_light, connections_per_pixel=True)[1]
+            return chain / vcm if vcm > 0.0 and math.isfinite(chain) else None
+        self.vcm_measured = self.chain_measured = False
         v_c1 = self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count >= MEASURE_PAIRS else v_c
         v_u1 = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq if self.uniform_passes_k1 >= MEASURE_PAIRS else v_u
         vcm_at_k = (v_c + v_u / self.n_light) * self.work(effort, 1, steps)[1]
@@ -226,7 +315,8 @@ class PassChoice:
         best = math.sqrt(camera * v_u / (light * v_c))
         return int(min(max(round(best), fewest), self.n_light))
 
-    def work_parts(self, effort, k: int, steps: int, n_light: int | None = None) -> dict:
+    def work_parts(self, effort, k: int, steps: int, n_light: int | None = None,
+                   connections_per_pixel: bool = False) -> dict:
         """The counted work of a chain pass with K camera subpaths per pixel and of a vcm pass,
         camera and light side apart, in the effort balance's units, from the chain passes'
         counts so far (tools/mbe_pass_costs.py sets them against measured time); the vcm pass
@@ -234,20 +324,33 @@ class PassChoice:
         n_light = self.n_light if n_light is None else n_light
         camera = effort.sum_camera_work / effort.sum_camera_paths          # per camera subpath per pixel
         per_subpath = self.light_work / self.traced
+        connecting = self.connections / self.traced                        # its connections' rays
         merges = DEPOSIT_WORK * self.merges_per_k / self.traced            # per light subpath, per unit K
+        # In a vcm pass each pixel's camera subpath connects to one light subpath (the pixel's
+        # index modulo N), so the connections are as many as a chain pass's light subpath
+        # makes, once per pixel, whatever N (connections_per_pixel): counted per light subpath
+        # they make a vcm pass of fewer light subpaths look cheaper than it is (docs/mbe.md,
+        # stop 40: the light shaft, chain pass 2.4x a vcm pass's time, counted 4.1x per light
+        # subpath, 2.0-2.2x per pixel). The prediction keeps the count per light subpath: its
+        # variance model errs the other way, and fixed alone the cost made mbe worse (stop 38).
+        vcm_light = n_light * (per_subpath - connecting + merges) + self.n_pixels * connecting \
+            if connections_per_pixel else n_light * (per_subpath + merges)
         return {"chain_camera": k * camera,
                 "chain_light": steps * self.traced / self.steps * (per_subpath + merges * k),
-                "vcm_camera": camera, "vcm_light": n_light * (per_subpath + merges)}
+                "vcm_camera": camera, "vcm_light": vcm_light}
 
-    def work(self, effort, k: int, steps: int, n_light: int | None = None) -> tuple[float, float]:
+    def work(self, effort, k: int, steps: int, n_light: int | None = None,
+             connections_per_pixel: bool = False) -> tuple[float, float]:
         """(a chain pass's work with K camera subpaths per pixel, a vcm pass's with n_light
         light subpaths) in the fitted cost model."""
-        w = self.work_parts(effort, k, steps, n_light)
+        w = self.work_parts(effort, k, steps, n_light, connections_per_pixel)
         return (CAMERA_WORK_WEIGHT * w["chain_camera"] + w["chain_light"] + CHAIN_STEP_WORK * steps,
                 CAMERA_WORK_WEIGHT * w["vcm_camera"] + w["vcm_light"])
 
     def stats(self) -> dict:
         return {"chain_passes": self.chain_passes, "vcm_passes": self.vcm_passes,
-                "predicted_chain_over_vcm": self.ratio, "measured_k1_passes": self.measured_passes,
+                "predicted_chain_over_vcm": self.ratio, "vcm_variance_measured": self.vcm_measured,
+                "vcm_passes_to_measure": self.explored_passes, "chain_variance_measured": self.chain_measured,
+                "measured_k1_passes": self.measured_passes,
                 "camera_variance_k1": self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count else None,
                 "vcm_pass_light_paths_mean": (self.vcm_light_paths_sum / self.vcm_passes if self.vcm_passes else None)}
