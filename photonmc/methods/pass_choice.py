@@ -32,6 +32,15 @@ The camera side of a vcm pass is not a chain pass's at K > 1 (there the camera-o
 techniques count K times); near the break-even, chain passes of one camera subpath per pixel,
 run in pairs, measure it (MEASURE_BAND below).
 
+--vcm-passes measured (stop 40, an experiment, not the default) compares the kinds by measured
+variances instead: a vcm pass's from vcm's light-path balance (the mean of its pair estimates),
+a chain pass's by batch means of consecutive chain passes (BatchMeansVariance: the warm start
+correlates them), the vcm pass's work with its connections counted once per pixel; where
+chain passes are predicted to win at K <= MEASURE_MAX_K, vcm passes take EXPLORE_SHARE of the
+work until they are measured. It ties with the prediction in four rooms and loses 1.28x in
+the held-out closet, where the vcm passes' rare fireflies make their measured variance read
+low (docs/mbe.md, "Each kind of pass measured").
+
 A vcm pass traces one camera subpath per pixel. vcm passes of several (each camera subpath a
 whole VCM estimator with the pass's light subpaths) were measured and dropped: chosen by the
 same prediction they took over the held-out closet, where independent light subpaths rarely
