@@ -100,8 +100,8 @@ MIN_PASSES_FOR_BALANCE = 16
 # as many passes), where chain passes are predicted to win at K <= MEASURE_MAX_K, vcm passes
 # take this share of the work: the prediction of a vcm pass's variance from chain passes
 # erred 1.3-2x high where the kinds mix (docs/mbe.md, stop 40), and without vcm passes there is
-# nothing to correct it with (the light shaft made its first 340 passes chain passes, at 2.2x
-# a vcm pass's time for the same variance per pass).
+# nothing to correct it with (the light shaft made its first 340 passes chain passes, at
+# 2.2-2.4x a vcm pass's time for the same variance per pass).
 EXPLORE_SHARE = 0.25
 MEASURE_BAND = 0.7
 MEASURE_PAIRS = 8
@@ -286,7 +286,7 @@ class PassChoice:
             # connections counted per pixel. Predicted from the chain passes, a vcm pass's
             # variance came out 1.3-2x high where the kinds mix (the light shaft: V_c at K = 1
             # alone 0.011-0.018, a vcm pass 0.009 measured), which the cost model's error the
-            # other way hid (docs/mbe.md, "The vcm passes measured").
+            # other way hid (docs/mbe.md, "Each kind of pass measured").
             # The chain pass measured too where it can be (BatchMeansVariance), at its K.
             self.vcm_measured = True
             self.chain_measured = chain_variance is not None
@@ -339,9 +339,10 @@ class PassChoice:
         # index modulo N), so the connections are as many as a chain pass's light subpath
         # makes, once per pixel, whatever N (connections_per_pixel): counted per light subpath
         # they make a vcm pass of fewer light subpaths look cheaper than it is (docs/mbe.md,
-        # stop 40: the light shaft, chain pass 2.4x a vcm pass's time, counted 4.1x per light
-        # subpath, 2.0-2.2x per pixel). The prediction keeps the count per light subpath: its
-        # variance model errs the other way, and fixed alone the cost made mbe worse (stop 38).
+        # "Each kind of pass measured": in the light shaft a chain pass takes 2.4x a vcm pass's
+        # time and is counted 4.1x; counted per pixel the ratio comes within 10-17 % of measured
+        # time in three rooms). The prediction keeps the count per light subpath: its variance
+        # model errs the other way, and fixed alone the cost made mbe worse (stop 38).
         vcm_light = n_light * (per_subpath - connecting + merges) + self.n_pixels * connecting \
             if connections_per_pixel else n_light * (per_subpath + merges)
         return {"chain_camera": k * camera,
