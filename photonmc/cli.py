@@ -180,9 +180,10 @@ def _add_vcm_options(parser):
                         "measured first where chain passes are predicted to win; an experiment, docs/mbe.md, "
                         "stop 40); off: chain passes only (docs/mbe.md, 'vcm passes where the chains do not pay')")
     g.add_argument("--balance", choices=["mse", "relmse"],
-                   help="mbe: what the effort balance behind --camera-paths auto minimises: the image's MSE "
-                        "(default) or its relative MSE, each pixel's error weighted by 1 / (its running mean^2 "
-                        "+ (0.1 x the image's mean)^2) (docs/mbe.md)")
+                   help="mbe, sppm, visibility, spatial-tf: what the effort balance behind --camera-paths auto "
+                        "(and sppm's --photons auto) minimises: the image's MSE (default) or its relative MSE, each "
+                        "pixel's error weighted by 1 / (its running mean^2 + (0.1 x the image's mean)^2) "
+                        "(docs/mbe.md, docs/guiding.md)")
 
 
 def _method_options(args) -> dict:

@@ -184,3 +184,34 @@ def test_photons_auto_is_refused_where_it_does_not_apply():
         prepare(scene, method="visibility", options={"photons": "auto"})
     with pytest.raises(SettingsError, match="a number of photons or 'auto'"):
         prepare(scene, method="sppm", options={"photons": "many"})
+
+
+def test_relative_balance_weighs_each_pixel_by_its_running_estimate():
+    """--balance relmse (sppm and the guided methods): the effort sums are each pixel's
+    squared differences weighted by 1 / (m^2 + eps), m the pixel's running estimate and eps
+    (0.1 x the image's mean)^2, recomputed here from the render's own fields."""
+    import numpy as np
+    from photonmc.errors import SettingsError
+    from photonmc.loop import prepare
+    from photonmc.scene import load_scene
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 16})
+    with pytest.raises(SettingsError, match="--balance must be"):
+        prepare(scene, method="sppm", options={"balance": "rel"})
+    p = prepare(scene, method="sppm", options={"balance": "relmse", "photons": 512})
+    m = p.method
+    for _ in range(12):
+        m.iterate()
+    passes, photons = m.iterations, m.photons_emitted
+    m._effort_sums(True, passes, photons)
+    relative = m.effort_sums.to_numpy()[:2]
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    mean = (m.Ld.to_numpy() / passes + m.D.to_numpy() / photons) @ lum
+    weight = 1.0 / (mean ** 2 + (0.1 * mean.mean()) ** 2)
+    spread, half = m.spread.to_numpy(), m.half_difference.to_numpy()
+    # (1e-6: the kernel's luminance weights are f32 literals)
+    assert relative == pytest.approx([(weight * spread).sum(), (weight * half).sum()], rel=1e-6)
+    m._effort_sums(False, passes, photons)
+    assert m.effort_sums.to_numpy()[:2] == pytest.approx([spread.sum(), half.sum()], rel=1e-6)
+    # the weights move the balance: the dim pixels count more than in the plain sums
+    assert relative[0] / relative[1] != pytest.approx(spread.sum() / half.sum(), rel=1e-3)
+    p.release()

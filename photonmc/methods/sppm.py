@@ -69,7 +69,7 @@ class Sppm(Method):
     work_unit = "photons"
     default_iterations = 100
     OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False,
-               "camera_paths": None, "radius_rule": "progressive"}
+               "camera_paths": None, "radius_rule": "progressive", "balance": "mse"}
     RADIUS_RULES = ("progressive", "balanced")
     default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
     # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the
@@ -115,6 +115,11 @@ class Sppm(Method):
         # balanced: every radius shrinks faster while the image's measured radius bias
         # outweighs its noise (docs/guiding.md, "A radius that balances its bias against the noise")
         self.balanced_radius = opts["radius_rule"] == "balanced"
+        if opts["balance"] not in ("mse", "relmse"):
+            raise SettingsError(f"--balance must be 'mse' or 'relmse', got '{opts['balance']}'")
+        # relmse: the effort balance weighs each pixel's error by 1 / (m^2 + eps), as converge's
+        # relMSE does (docs/guiding.md, "An effort balance for relative error")
+        self.relative_balance = opts["balance"] == "relmse"
         self.alpha_factor = 1.0       # its factor on alpha for this pass
         self.fast_passes = 0          # and the passes it shrank faster
         depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
@@ -244,7 +249,7 @@ class Sppm(Method):
             self.fast_passes += int(self.alpha_factor < 1.0)
         if self.effort is None:
             return
-        self._effort_sums()
+        self._effort_sums(self.relative_balance, self.iterations + 1, self.photons_emitted + n_p)
         spread, half, radius_sq, valid, camera_rays, segments, deposits, *separate = self.effort_sums.to_numpy()
         self._observe_uniform_weight(*separate)
         n = float(self.n_pixels)
@@ -528,14 +533,28 @@ class Sppm(Method):
         return factor
 
     @ti.kernel
-    def _effort_sums(self):
+    def _effort_sums(self, relative: ti.template(), passes: ti.f64, photons: ti.f64):
         """Sums over pixels for the effort balance, in one fixed order (a serial loop), so
-        that the photon count it picks, and so the image, does not depend on thread timing."""
+        that the photon count it picks, and so the image, does not depend on thread timing.
+        relative (--balance relmse): each pixel's terms weighted by 1 / (m^2 + eps), m its
+        running estimate after `passes` passes of `photons` photons in all, eps = (0.1 x the
+        image's mean m)^2 (converge's relMSE)."""
         sums = ti.Vector([0.0] * 8, ti.f64)
+        lum = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
+        eps = ti.f64(0.0)
+        if ti.static(relative):
+            ti.loop_config(serialize=True)
+            for i in range(self.n_pixels):
+                eps += lum.dot(self.Ld[i] / passes + self.D[i] / photons)
+            eps = ti.max((0.1 * eps / ti.static(self.n_pixels)) ** 2, 1e-30)
         ti.loop_config(serialize=True)
         for i in range(self.n_pixels):
-            sums[0] += self.spread[i]
-            sums[1] += self.half_difference[i]
+            weight = ti.f64(1.0)
+            if ti.static(relative):
+                m = lum.dot(self.Ld[i] / passes + self.D[i] / photons)
+                weight = 1.0 / (m * m + eps)
+            sums[0] += weight * self.spread[i]
+            sums[1] += weight * self.half_difference[i]
             sums[4] += self.deposits[i]
             if ti.static(self.uniform_accumulator):
                 c, u = self.half_chains[i], self.half_uniform[i]
