@@ -219,6 +219,66 @@ def test_a_vcm_pass_measured_replaces_its_prediction():
     assert not c.vcm_measured
 
 
+def test_a_measured_ratio_near_one_by_its_standard_errors_leaves_the_choice_to_the_prediction():
+    """--vcm-passes measured: the measured ratio decides only where it lies more than
+    MEASURED_Z standard errors of its logarithm from 1 (both kinds' variances measured, each
+    with its relative error); nearer, the prediction's ratio is used, as under auto. Without
+    the errors, the measured ratio always decides (docs/mbe.md, stop 41)."""
+    import math
+    from photonmc.methods.pass_choice import MEASURED_Z, PassChoice
+    n_light, steps, r2, v_c, v_p, v_u = 4096, 4096, 0.01, 0.01, 0.001, 2.0
+    effort = _KnownEffort(v_c, v_p, camera_work=20.0 * n_light)
+
+    def choice(measured):
+        c = PassChoice(n_light, True, n_pixels=n_light, measured=measured)
+        for _ in range(8):
+            c.observe_chain_pass(steps, 2, traced=steps, light_work=3.0 * steps, merges=steps,
+                                 uniform_variance=v_u, radius_sq=r2, connections=1.0 * steps)
+        return c
+
+    predicted = choice(False)
+    predicted.next_is_vcm(effort, 2, 8, steps, r2, n_light)
+    c = choice(True)
+    n, chain_variance, target = n_light // 2, 0.004, 1.3
+    vcm_variance = chain_variance * c.work(effort, 2, steps)[0] / (target * c.work(effort, 1, steps, n, True)[1])
+    wide = 1.05 * math.log(target) / MEASURED_Z / math.sqrt(2.0)      # a log error just above |ln 1.3|
+    c.next_is_vcm(effort, 2, 8, steps, r2, n, vcm_variance, chain_variance, (wide, wide))
+    assert c.measured_ratio == pytest.approx(target)
+    assert not c.vcm_measured and c.ratio == pytest.approx(predicted.ratio)
+    narrow = 0.95 * math.log(target) / MEASURED_Z / math.sqrt(2.0)
+    c.next_is_vcm(effort, 2, 8, steps, r2, n, vcm_variance, chain_variance, (narrow, narrow))
+    assert c.vcm_measured and c.chain_measured and c.ratio == pytest.approx(target)
+    c.next_is_vcm(effort, 2, 8, steps, r2, n, vcm_variance, chain_variance)
+    assert c.vcm_measured and c.ratio == pytest.approx(target)
+    assert c.stats()["measured_ratio_trusted"] == 2 and c.stats()["measured_ratio_untrusted"] == 1
+
+
+def test_the_measured_variances_report_their_standard_errors():
+    """vcm's light-path balance: the spread of its pass-variance estimates over the root of
+    their number, over their mean; batch means: sqrt(2 / (batches - 1))."""
+    import numpy as np
+    from photonmc.methods.light_balance import MEASURED_AFTER, LightPathBalance
+    from photonmc.methods.pass_choice import BatchMeansVariance
+    rng = np.random.default_rng(3)
+    balance = LightPathBalance(4096)
+    estimates = []
+    for i in range(2 * MEASURED_AFTER):
+        spread = float(rng.exponential(1.0)) * 2.0 * 100
+        balance.observe(balance.next_light_paths(), spread, 100, 1.0)
+        if i % 2 == 1:
+            estimates.append(0.5 * spread / 100)
+        if len(estimates) < MEASURED_AFTER:
+            assert balance.pass_variance_relative_error() is None
+    e = np.asarray(estimates)
+    assert balance.pass_variance() == pytest.approx(e.mean())
+    assert balance.pass_variance_relative_error() == pytest.approx(e.std(ddof=1) / np.sqrt(len(e)) / e.mean())
+    batches = BatchMeansVariance(4)
+    for b in range(BatchMeansVariance.AFTER):
+        assert batches.relative_error() is None
+        batches.observe_batch(rng.normal(size=4) * BatchMeansVariance.BATCH)
+    assert batches.relative_error() == pytest.approx(np.sqrt(2.0 / (BatchMeansVariance.AFTER - 1)))
+
+
 def test_vcm_passes_are_measured_before_chain_passes_are_preferred_to_them():
     """--vcm-passes measured: where chain passes are predicted to win at K <= MEASURE_MAX_K,
     vcm passes take EXPLORE_SHARE of the work until their variance is measured (vcm_variance

@@ -41,7 +41,9 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           # Held out from the guided photons' work (stops 29 and 31).
           "cellar-hatch": ("../tools/heldout/cellar-hatch.xml", "../../tools/heldout/cellar-hatch-64.exr",
                            {"res": "64"}),
-          "lit-study": ("../tools/heldout/lit-study.xml", "../../tools/heldout/lit-study-64.exr", {"res": "64"})}
+          "lit-study": ("../tools/heldout/lit-study.xml", "../../tools/heldout/lit-study-64.exr", {"res": "64"}),
+          "light-shaft": ("../tools/heldout/light-shaft.xml", "../../tools/heldout/light-shaft-64.exr", {"res": "64"}),
+          "loft-hatch": ("../tools/heldout/loft-hatch.xml", "../../tools/heldout/loft-hatch-64.exr", {"res": "64"})}
 
 
 def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):

@@ -64,6 +64,7 @@ class LightPathBalance:
         self.light_paths_sum = 0.0
         self.last_ratio = 0.0          # lower probe's variance x work over the upper's, at the last move
         self.variance_mean = 0.0       # a pass's variance, mean over all estimates (pass_variance)
+        self.variance_m2 = 0.0         # and their squared deviations (Welford), for its standard error
         self.estimates = 0
 
     def probe(self, side: int) -> int:
@@ -85,7 +86,9 @@ class LightPathBalance:
             return
         variance = 0.5 * spread / n_pixels
         self.estimates += 1
-        self.variance_mean += (variance - self.variance_mean) / self.estimates
+        delta = variance - self.variance_mean
+        self.variance_mean += delta / self.estimates
+        self.variance_m2 += delta * (variance - self.variance_mean)
         self.sums[2 * side] += variance
         self.sums[2 * side + 1] += work
         self.blocks[side] += 1
@@ -106,6 +109,15 @@ class LightPathBalance:
         """The variance of one pass (luminance, mean over pixels) at about the centre's light
         subpaths, once MEASURED_AFTER estimates are in."""
         return self.variance_mean if self.estimates >= MEASURED_AFTER else None
+
+    def pass_variance_relative_error(self) -> float | None:
+        """The standard error of pass_variance() over its value: the spread of the estimates
+        over the root of their number. A rare large estimate raises it, so that mbe's pass
+        choice does not trust a mean that one event decides (methods/pass_choice.py)."""
+        if self.estimates < MEASURED_AFTER or not self.variance_mean > 0.0:
+            return None
+        sd = math.sqrt(self.variance_m2 / (self.estimates - 1))
+        return sd / math.sqrt(self.estimates) / self.variance_mean
 
     @staticmethod
     def work(n_pixels: int, camera_vertices: float, connections: float, segments: float, light_rays: float,

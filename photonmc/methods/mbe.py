@@ -361,7 +361,9 @@ class Mbe(Vcm):
         it = self.iteration_index
         if self.pass_choice.next_is_vcm(self.effort, self.camera_paths, self.max_camera_paths, self.steps_last,
                                         self.radius ** 2, self.light_balance.next_light_paths(),
-                                        self.light_balance.pass_variance(), self.chain_batches.pass_variance()):
+                                        self.light_balance.pass_variance(), self.chain_batches.pass_variance(),
+                                        (self.light_balance.pass_variance_relative_error(),
+                                         self.chain_batches.relative_error())):
             self._vcm_pass(it)
         else:
             self._chain_pass(it)

@@ -103,6 +103,11 @@ MIN_PASSES_FOR_BALANCE = 16
 # nothing to correct it with (the light shaft made its first 340 passes chain passes, at
 # 2.2-2.4x a vcm pass's time for the same variance per pass).
 EXPLORE_SHARE = 0.25
+# --vcm-passes measured: the measured ratio overrules the prediction only where it lies more
+# than MEASURED_Z standard errors (of its logarithm, from both kinds' measured variances) from
+# 1; nearer, the prediction decides. Without this the held-out closet, near the break-even,
+# took vcm passes on a vcm variance that read low until a firefly (docs/mbe.md, stop 40/41).
+MEASURED_Z = 1.0
 MEASURE_BAND = 0.7
 MEASURE_PAIRS = 8
 MEASURE_EVERY = 32
@@ -139,6 +144,13 @@ class BatchMeansVariance:
             return None
         return float(self.BATCH * (self.m2 / (self.batches - 1)).mean())
 
+    def relative_error(self) -> float | None:
+        """The standard error of pass_variance() over its value, sqrt(2 / (batches - 1)):
+        that of a variance from that many (near-Gaussian, independent) batch means."""
+        if self.batches < self.AFTER:
+            return None
+        return math.sqrt(2.0 / (self.batches - 1))
+
 
 class PassChoice:
     def __init__(self, n_light: int, enabled: bool, n_pixels: int | None = None, measured: bool = False):
@@ -174,6 +186,9 @@ class PassChoice:
         self.measuring_left = 0         # chain passes of the current measurement pair still to run at K = 1
         self.last_pair_at = -MEASURE_EVERY
         self.measured_passes = 0
+        self.measured_ratio = None      # --vcm-passes measured: the last measured ratio,
+        self.measured_trusted = 0       # and how often it decided (MEASURED_Z) or the prediction did
+        self.measured_untrusted = 0
 
     def chain_pass_k(self, k: int) -> int:
         """The K of the next chain pass: the balance's K, or 1 in a measurement pair."""
@@ -218,12 +233,15 @@ class PassChoice:
                 self.uniform_passes_k1 += 1
 
     def next_is_vcm(self, effort, k: int, most_k: int, steps: int, radius_sq: float, n_light: int,
-                    vcm_variance: float | None = None, chain_variance: float | None = None) -> bool:
+                    vcm_variance: float | None = None, chain_variance: float | None = None,
+                    relative_errors: tuple = (None, None)) -> bool:
         """Whether the next pass should be a vcm pass, against a chain pass of `steps` steps
         and K camera subpaths per pixel (at most `most_k`); a vcm pass would trace n_light
         light subpaths (vcm's light-path balance), and vcm_variance is the variance of a vcm
-        pass measured on those made (None until enough are: the prediction, below)."""
-        self.ratio = self._ratio(effort, most_k, steps, radius_sq, n_light, vcm_variance, chain_variance, k)
+        pass measured on those made (None until enough are: the prediction, below);
+        relative_errors: the standard errors of the vcm and chain variances over their values."""
+        self.ratio = self._ratio(effort, most_k, steps, radius_sq, n_light, vcm_variance, chain_variance, k,
+                                 relative_errors)
         if self._exploring(k, vcm_variance):
             if self.explore_vcm_work >= EXPLORE_SHARE * (self.explore_vcm_work + self.explore_chain_work):
                 self.explore_chain_work += self.work(effort, k, steps)[0]
@@ -255,7 +273,7 @@ class PassChoice:
 
     def _ratio(self, effort, most_k: int, steps: int, radius_sq: float, n_light: int | None = None,
                vcm_variance: float | None = None, chain_variance: float | None = None,
-               k: int = 1) -> float | None:
+               k: int = 1, relative_errors: tuple = (None, None)) -> float | None:
         shares = effort.shares()
         if (self.chain_passes < MIN_CHAIN_PASSES or shares is None or self.uniform_passes == 0
                 or self.traced <= 0 or effort.sum_camera_paths <= 0 or not radius_sq > 0):
@@ -288,12 +306,21 @@ class PassChoice:
             # alone 0.011-0.018, a vcm pass 0.009 measured), which the cost model's error the
             # other way hid (docs/mbe.md, "Each kind of pass measured").
             # The chain pass measured too where it can be (BatchMeansVariance), at its K.
-            self.vcm_measured = True
-            self.chain_measured = chain_variance is not None
-            if self.chain_measured:
-                chain = chain_variance * self.work(effort, k, steps)[0]
+            chain_measured = chain_variance is not None
+            measured_chain = chain_variance * self.work(effort, k, steps)[0] if chain_measured else chain
             vcm = vcm_variance * self.work(effort, 1, steps, n_light, connections_per_pixel=True)[1]
-            return chain / vcm if vcm > 0.0 and math.isfinite(chain) else None
+            measured = measured_chain / vcm if vcm > 0.0 and math.isfinite(measured_chain) else None
+            # Trusted only where it differs from 1 by more than MEASURED_Z standard errors: a
+            # heavy-tailed vcm variance (the closet's fireflies) reads low in most renders, and
+            # 8 batch means leave the chain side's variance uncertain by half.
+            vcm_error, chain_error = relative_errors
+            log_error = math.hypot(vcm_error or 0.0, (chain_error or 0.0) if chain_measured else 0.0)
+            self.measured_ratio = measured
+            if measured is not None and abs(math.log(max(measured, 1e-300))) > MEASURED_Z * log_error:
+                self.vcm_measured, self.chain_measured = True, chain_measured
+                self.measured_trusted += 1
+                return measured
+            self.measured_untrusted += 1
         self.vcm_measured = self.chain_measured = False
         v_c1 = self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count >= MEASURE_PAIRS else v_c
         v_u1 = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq if self.uniform_passes_k1 >= MEASURE_PAIRS else v_u
@@ -362,5 +389,7 @@ class PassChoice:
                 "predicted_chain_over_vcm": self.ratio, "vcm_variance_measured": self.vcm_measured,
                 "vcm_passes_to_measure": self.explored_passes, "chain_variance_measured": self.chain_measured,
                 "measured_k1_passes": self.measured_passes,
+                "measured_chain_over_vcm": self.measured_ratio,
+                "measured_ratio_trusted": self.measured_trusted, "measured_ratio_untrusted": self.measured_untrusted,
                 "camera_variance_k1": self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count else None,
                 "vcm_pass_light_paths_mean": (self.vcm_light_paths_sum / self.vcm_passes if self.vcm_passes else None)}
