@@ -251,6 +251,12 @@ def test_a_measured_ratio_near_one_by_its_standard_errors_leaves_the_choice_to_t
     c.next_is_vcm(effort, 2, 8, steps, r2, n, vcm_variance, chain_variance)
     assert c.vcm_measured and c.ratio == pytest.approx(target)
     assert c.stats()["measured_ratio_trusted"] == 2 and c.stats()["measured_ratio_untrusted"] == 1
+    # while vcm passes win by a trusted measured ratio r, chain passes keep CHAIN_WORK_SHARE / r^2
+    # of the work (a tenth under the prediction)
+    from photonmc.methods.pass_choice import CHAIN_WORK_SHARE
+    assert c.chain_share() == pytest.approx(CHAIN_WORK_SHARE / target ** 2)
+    predicted.ratio = target
+    assert predicted.chain_share() == CHAIN_WORK_SHARE
 
 
 def test_the_measured_variances_report_their_standard_errors():

@@ -258,12 +258,24 @@ class PassChoice:
         # Measured (--vcm-passes measured), the share is kept in the cost model that counts a
         # vcm pass's connections per pixel (work_parts), the one that follows measured time.
         chain_work = self.work(effort, k, steps)[0]
-        if self.vcm_work_since_chain * CHAIN_WORK_SHARE >= chain_work * (1.0 - CHAIN_WORK_SHARE):
+        share = self.chain_share()
+        if self.vcm_work_since_chain * share >= chain_work * (1.0 - share):
             return False
         self.vcm_passes += 1
         self.vcm_light_paths_sum += n_light
         self.vcm_work_since_chain += self.work(effort, k, steps, n_light, connections_per_pixel=self.measured)[1]
         return True
+
+    def chain_share(self) -> float:
+        """The share of the work chain passes keep while vcm passes win: CHAIN_WORK_SHARE, and
+        under --vcm-passes measured, once the measured ratio decides, CHAIN_WORK_SHARE / ratio^2.
+        Chain passes that are r times worse per unit of work cost the film about share x (r - 1)
+        of its efficiency, and a ratio measured far from 1 needs fewer of them to stay current:
+        at a tenth, the light shaft's hundred chain passes among 1,300 vcm passes left mbe 1.2x
+        vcm's RMSE, where vcm passes alone tie it (docs/mbe.md, stop 41)."""
+        if self.measured and self.vcm_measured and self.ratio is not None and self.ratio > 1.0:
+            return CHAIN_WORK_SHARE / self.ratio ** 2
+        return CHAIN_WORK_SHARE
 
     def _exploring(self, k: int, vcm_variance: float | None) -> bool:
         """Whether vcm passes are still to be measured: until vcm's light-path balance has
