@@ -40,8 +40,9 @@ chain passes are predicted to win at K <= MEASURE_MAX_K, vcm passes take EXPLORE
 work until they are measured. It ties with the prediction in four rooms and loses 1.28x in
 the held-out closet, where the vcm passes' rare fireflies make their measured variance read
 low (docs/mbe.md, "Each kind of pass measured"). Since stop 41 the measured ratio decides
-only beyond MEASURED_Z standard errors from 1 (the closet: 1.10x; docs/mbe.md, "The loft with
-a quieter reference, and a guard on the measured ratio").
+only beyond MEASURED_Z standard errors from 1 (the closet: 1.10x), and chain passes then keep
+CHAIN_WORK_SHARE / ratio^2 of the work (chain_share; docs/mbe.md, "The loft with a quieter
+reference, and a guard on the measured ratio").
 
 A vcm pass traces one camera subpath per pixel. vcm passes of several (each camera subpath a
 whole VCM estimator with the pass's light subpaths) were measured and dropped: chosen by the
