@@ -204,14 +204,13 @@ def test_relative_balance_weighs_each_pixel_by_its_running_estimate():
     passes, photons = m.iterations, m.photons_emitted
     m._effort_sums(True, passes, photons)
     relative = m.effort_sums.to_numpy()[:2]
-    lum = np.array([0.2126, 0.7152, 0.0722])
+    lum = np.array([0.2126, 0.7152, 0.0722], np.float32).astype(np.float64)   # the kernel's f32 literals
     mean = (m.Ld.to_numpy() / passes + m.D.to_numpy() / photons) @ lum
-    weight = 1.0 / (mean ** 2 + (0.1 * mean.mean()) ** 2)
+    weight = 1.0 / (mean ** 2 + (float(np.float32(0.1)) * mean.mean()) ** 2)
     spread, half = m.spread.to_numpy(), m.half_difference.to_numpy()
-    # (1e-6: the kernel's luminance weights are f32 literals)
-    assert relative == pytest.approx([(weight * spread).sum(), (weight * half).sum()], rel=1e-6)
+    assert relative == pytest.approx([(weight * spread).sum(), (weight * half).sum()], rel=1e-9)
     m._effort_sums(False, passes, photons)
-    assert m.effort_sums.to_numpy()[:2] == pytest.approx([spread.sum(), half.sum()], rel=1e-6)
+    assert m.effort_sums.to_numpy()[:2] == pytest.approx([spread.sum(), half.sum()], rel=1e-9)
     # the weights move the balance: the dim pixels count more than in the plain sums
     assert relative[0] / relative[1] != pytest.approx(spread.sum() / half.sum(), rel=1e-3)
     p.release()

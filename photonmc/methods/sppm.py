@@ -118,7 +118,7 @@ class Sppm(Method):
         if opts["balance"] not in ("mse", "relmse"):
             raise SettingsError(f"--balance must be 'mse' or 'relmse', got '{opts['balance']}'")
         # relmse: the effort balance weighs each pixel's error by 1 / (m^2 + eps), as converge's
-        # relMSE does (docs/guiding.md, "An effort balance for relative error")
+        # relMSE does (docs/guiding.md, "The closet's error, and two levers measured")
         self.relative_balance = opts["balance"] == "relmse"
         self.alpha_factor = 1.0       # its factor on alpha for this pass
         self.fast_passes = 0          # and the passes it shrank faster
