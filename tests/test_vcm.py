@@ -161,6 +161,21 @@ def test_a_pass_with_fewer_light_subpaths_is_the_pass_of_a_vcm_with_that_many():
     assert images[0].mean() > 0 and np.array_equal(images[0], images[1])
 
 
+def test_a_pass_that_only_measures_stays_out_of_the_film():
+    """vcm_pass(keep=False) (mbe's passes that only measure a vcm pass's variance,
+    methods/pass_choice.py): the pass is traced and measured (its spread against the last
+    pass's estimate), and the film is what the other passes alone make."""
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 16})
+    images = []
+    for passes in (((0, True), (1, True), (2, False), (3, True)), ((0, True), (1, True), (3, True))):
+        p = prepare(scene, method="vcm", seed=3)
+        spreads = [p.method.vcm_pass(it, it, 64, keep)[0] for it, keep in passes]
+        assert p.method.film.film.samples_per_pixel == 3 and min(spreads[1:]) > 0.0
+        images.append(p.method.image())
+        p.release()
+    assert images[0].mean() > 0 and np.array_equal(images[0], images[1])
+
+
 def test_seed_determinism():
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 16})
     a = render(scene, 3, seed=3).image

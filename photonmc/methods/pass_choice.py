@@ -168,6 +168,8 @@ class PassChoice:
         self.uniform_passes_k1 = 0
         self.traced = 0.0               # light subpaths traced by chain passes
         self.steps = 0.0                # chain steps
+        self.k_sum = 0.0                # camera subpaths per pixel, and K x steps, summed over chain
+        self.k_steps_sum = 0.0          # passes (the mean work of the passes a measured variance is of)
         self.light_work = 0.0           # their segments and shadow rays
         self.connections = 0.0          # of those shadow rays, the connections' (to a camera subpath)
         self.merges_per_k = 0.0         # merge candidates / K (they grow with the camera vertices)
@@ -181,6 +183,7 @@ class PassChoice:
         self.explore_vcm_work = 0.0     # work of the vcm passes made to measure them, and of the
         self.explore_chain_work = 0.0   # chain passes made meanwhile (EXPLORE_SHARE)
         self.explored_passes = 0
+        self.exploring_now = False      # the vcm pass just chosen only measures (not in the film)
         # N*: the light subpaths a vcm pass is judged at (the passes trace the light-path balance's)
         self.vcm_light_paths = self.n_light
         self.vcm_light_paths_sum = 0.0  # over the vcm passes made
@@ -224,6 +227,8 @@ class PassChoice:
         self.chain_passes += 1
         self.vcm_work_since_chain = 0.0
         self.steps += steps
+        self.k_sum += k
+        self.k_steps_sum += k * steps
         self.traced += traced
         self.light_work += light_work
         self.connections += connections
@@ -245,12 +250,14 @@ class PassChoice:
         relative_errors: the standard errors of the vcm and chain variances over their values."""
         self.ratio = self._ratio(effort, most_k, steps, radius_sq, n_light, vcm_variance, chain_variance, k,
                                  relative_errors)
+        self.exploring_now = False
         if self._exploring(k, vcm_variance):
             if self.explore_vcm_work >= EXPLORE_SHARE * (self.explore_vcm_work + self.explore_chain_work):
                 self.explore_chain_work += self.work(effort, k, steps)[0]
                 return False
             self.explore_vcm_work += self.work(effort, k, steps, n_light, connections_per_pixel=True)[1]
             self.explored_passes += 1
+            self.exploring_now = True
             self.vcm_passes += 1
             self.vcm_light_paths_sum += n_light
             return True
@@ -321,9 +328,16 @@ class PassChoice:
             # alone 0.011-0.018, a vcm pass 0.009 measured), which the cost model's error the
             # other way hid (docs/mbe.md, "Each kind of pass measured").
             # The chain pass measured too where it can be (BatchMeansVariance), at its K.
+            # Each measured variance is paired with the mean work of the passes it was measured
+            # on (made_work): while vcm passes win, the effort balance's K and the steps drift
+            # from those of the chain passes made (the held-out closet: measured at K 4-5 and
+            # about 5,000 steps, judged at K 8-10 and 11,000 steps, so at 2.3x their work; its
+            # measured ratio 2.0 chose vcm passes where chain passes win, docs/mbe.md, stop 42).
             chain_measured = chain_variance is not None
-            measured_chain = chain_variance * self.work(effort, k, steps)[0] if chain_measured else chain
-            vcm = vcm_variance * self.work(effort, 1, steps, n_light, connections_per_pixel=True)[1]
+            chain_work, vcm_work = self.made_work(effort)
+            measured_chain = chain_variance * chain_work if chain_measured else chain
+            vcm = vcm_variance * (vcm_work if vcm_work is not None
+                                  else self.work(effort, 1, steps, n_light, connections_per_pixel=True)[1])
             measured = measured_chain / vcm if vcm > 0.0 and math.isfinite(measured_chain) else None
             # Trusted only where it differs from 1 by more than MEASURED_Z standard errors: a
             # heavy-tailed vcm variance (the closet's fireflies) reads low in most renders, and
@@ -366,13 +380,27 @@ class PassChoice:
         best = math.sqrt(camera * v_u / (light * v_c))
         return int(min(max(round(best), fewest), self.n_light))
 
-    def work_parts(self, effort, k: int, steps: int, n_light: int | None = None,
-                   connections_per_pixel: bool = False) -> dict:
+    def made_work(self, effort) -> tuple[float, float | None]:
+        """The mean counted work of the chain passes made, and of the vcm passes made (None
+        before any), under --vcm-passes measured's cost model (connections per pixel): the
+        passes whose variances were measured. Work is linear in K, steps, K x steps and the
+        light subpaths, so the work at their means is the mean work."""
+        n = max(self.chain_passes, 1)
+        chain = self.work(effort, self.k_sum / n, self.steps / n, k_steps=self.k_steps_sum / n)[0]
+        if self.vcm_passes == 0:
+            return chain, None
+        return chain, self.work(effort, 1, 1, self.vcm_light_paths_sum / self.vcm_passes,
+                                connections_per_pixel=True)[1]
+
+    def work_parts(self, effort, k: float, steps: float, n_light: float | None = None,
+                   connections_per_pixel: bool = False, k_steps: float | None = None) -> dict:
         """The counted work of a chain pass with K camera subpaths per pixel and of a vcm pass,
         camera and light side apart, in the effort balance's units, from the chain passes'
         counts so far (tools/mbe_pass_costs.py sets them against measured time); the vcm pass
-        with n_light light subpaths (--light-paths by default)."""
+        with n_light light subpaths (--light-paths by default). k_steps: K x steps, or its
+        mean where K and steps are means over passes."""
         n_light = self.n_light if n_light is None else n_light
+        k_steps = k * steps if k_steps is None else k_steps
         camera = effort.sum_camera_work / effort.sum_camera_paths          # per camera subpath per pixel
         per_subpath = self.light_work / self.traced
         connecting = self.connections / self.traced                        # its connections' rays
@@ -388,14 +416,14 @@ class PassChoice:
         vcm_light = n_light * (per_subpath - connecting + merges) + self.n_pixels * connecting \
             if connections_per_pixel else n_light * (per_subpath + merges)
         return {"chain_camera": k * camera,
-                "chain_light": steps * self.traced / self.steps * (per_subpath + merges * k),
+                "chain_light": self.traced / self.steps * (per_subpath * steps + merges * k_steps),
                 "vcm_camera": camera, "vcm_light": vcm_light}
 
-    def work(self, effort, k: int, steps: int, n_light: int | None = None,
-             connections_per_pixel: bool = False) -> tuple[float, float]:
+    def work(self, effort, k: float, steps: float, n_light: float | None = None,
+             connections_per_pixel: bool = False, k_steps: float | None = None) -> tuple[float, float]:
         """(a chain pass's work with K camera subpaths per pixel, a vcm pass's with n_light
         light subpaths) in the fitted cost model."""
-        w = self.work_parts(effort, k, steps, n_light, connections_per_pixel)
+        w = self.work_parts(effort, k, steps, n_light, connections_per_pixel, k_steps)
         return (CAMERA_WORK_WEIGHT * w["chain_camera"] + w["chain_light"] + CHAIN_STEP_WORK * steps,
                 CAMERA_WORK_WEIGHT * w["vcm_camera"] + w["vcm_light"])
 

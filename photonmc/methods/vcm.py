@@ -184,11 +184,12 @@ class Vcm(Method):
         self.balance.observe(n, spread, self.n_pixels, work)
         self.work_done += n + self.n_pixels
 
-    def vcm_pass(self, it: int, radius_index: int, n_light: int | None = None):
+    def vcm_pass(self, it: int, radius_index: int, n_light: int | None = None, keep: bool = True):
         """One iteration: random numbers drawn for index `it`, merging radius r_(radius_index)
         (the same index for vcm; mbe's vcm passes index it by its camera subpaths), n_light
         light subpaths (at most --light-paths, which sizes the store; mbe's vcm passes choose
-        theirs, methods/pass_choice.py)."""
+        theirs, methods/pass_choice.py). keep=False measures the pass without adding it to the
+        film (mbe's passes that only measure a vcm pass's variance, methods/pass_choice.py)."""
         n_light = self.n_light if n_light is None else int(n_light)
         if not 1 <= n_light <= self.n_light:
             raise ValueError(f"a vcm pass traces 1 to {self.n_light} light subpaths, not {n_light}")
@@ -217,8 +218,9 @@ class Vcm(Method):
         if self.store is not None:
             self.vertices_last = n
         measured = self._camera_pass(store, grid, self.seed_u32, it, self.max_depth,
-                                     1.0 / (PI * self.radius ** 2 * n_light))
-        self.film.count_flushed()
+                                     1.0 / (PI * self.radius ** 2 * n_light), int(keep))
+        if keep:
+            self.film.count_flushed()
         return measured
 
     def _index_serial(self, n_paths: int) -> tuple[bool, bool]:
@@ -301,8 +303,9 @@ class Vcm(Method):
     # -- camera side ---------------------------------------------------------------------
     @ti.kernel
     def _camera_pass(self, store: ti.template(), grid: ti.template(), seed: ti.u32, iteration: ti.u32,
-                     max_depth: ti.i32, vm_normalization: ti.f32) -> ti.types.vector(5, ti.f64):
-        """One camera subpath per pixel, then the frame joins the film, in one launch. With the
+                     max_depth: ti.i32, vm_normalization: ti.f32, keep: ti.i32) -> ti.types.vector(5, ti.f64):
+        """One camera subpath per pixel, then the frame joins the film (or, keep = 0, is only
+        measured and cleared), in one launch. With the
         light-path balance, returns what it measures of the pass (zeros without): the sum over
         pixels of (this pass's estimate - the last one's)^2 in luminance, summed per row, then
         over rows in a fixed order (a seed gives one image whatever the threads); light
@@ -319,7 +322,10 @@ class Vcm(Method):
                     d = e - self.last_estimate[y * w + x]
                     self.last_estimate[y * w + x] = e
                     row += d * d
-                self.film.flush_pixel(y, x)
+                if keep:
+                    self.film.flush_pixel(y, x)
+                else:
+                    self.film.frame[y, x] = ti.Vector([0, 0, 0], ti.i64)
             self.row_spread[y] = row
         total = ti.f64(0.0)
         ti.loop_config(serialize=True)
