@@ -174,11 +174,11 @@ def _add_vcm_options(parser):
                         "guided methods mutate with probability 1 - share); 0: the chains' estimate alone; "
                         "1: the uniform proposals' alone (docs/mbe.md, docs/guiding.md)")
     g.add_argument("--vcm-passes", choices=["auto", "measured", "off"],
-                   help="mbe: auto (default) makes a pass a vcm pass (independent light subpaths, no chains) "
-                        "where its chain passes predict that a vcm pass removes more error per unit of work; "
-                        "measured: the same choice from both kinds' measured variance per pass (vcm passes "
-                        "measured first where chain passes are predicted to win; an experiment, docs/mbe.md, "
-                        "stop 40); off: chain passes only (docs/mbe.md, 'vcm passes where the chains do not pay')")
+                   help="mbe: measured (default) makes a pass a vcm pass (independent light subpaths, no "
+                        "chains) where both kinds' measured variance per pass x work says it removes more error "
+                        "(vcm passes measured first where chain passes are predicted to win; docs/mbe.md, stop 42); "
+                        "auto: the same choice as the chain passes' measurements predict it; off: chain passes "
+                        "only (docs/mbe.md, 'vcm passes where the chains do not pay')")
     g.add_argument("--balance", choices=["mse", "relmse"],
                    help="mbe, sppm, visibility, spatial-tf: what the effort balance behind --camera-paths auto "
                         "(and sppm's --photons auto) minimises: the image's MSE (default) or its relative MSE, each "

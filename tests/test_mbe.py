@@ -92,7 +92,7 @@ def test_uniform_proposals_estimate_keeps_the_furnace(write_scene, uniform_weigh
 
 
 def test_vcm_passes_where_the_chains_do_not_pay(write_scene):
-    """--vcm-passes auto (the default; methods/pass_choice.py): in the furnace every light
+    """--vcm-passes auto (the prediction; methods/pass_choice.py): in the furnace every light
     subpath contributes, so the chains' records are worth no more than as many independent
     light subpaths, and a chain pass costs more than vcm's. After its first four chain passes
     mbe makes vcm passes, and chain passes still come (a tenth of the work); the image still
@@ -101,7 +101,7 @@ def test_vcm_passes_where_the_chains_do_not_pay(write_scene):
     --vcm-passes off every pass is a chain pass."""
     scene = load_scene(write_scene(furnace_xml("sphere")))
     expected = furnace_expectation(3)
-    p = prepare(scene, method="mbe", seed=2, max_depth=3, options={"camera_paths": 2})
+    p = prepare(scene, method="mbe", seed=2, max_depth=3, options={"camera_paths": 2, "vcm_passes": "auto"})
     m, traced, kinds = p.method, 0, []
     for _ in range(200):
         before = m.pass_choice.vcm_passes
@@ -116,7 +116,7 @@ def test_vcm_passes_where_the_chains_do_not_pay(write_scene):
     p.release()
     assert kinds[:4] == ["c"] * 4 and kinds.count("v") >= 150 and "c" in kinds[20:]
     assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected, lum.mean()
-    again = render(scene, 200, seed=2, max_depth=3, camera_paths=2)
+    again = render(scene, 200, seed=2, max_depth=3, camera_paths=2, vcm_passes="auto")
     assert np.array_equal(again.image, image.astype(again.image.dtype))
     assert again.stats["passes"]["vcm_passes"] == kinds.count("v")
     # the vcm passes trace what vcm's light-path balance measures on them
@@ -213,7 +213,7 @@ def test_a_vcm_pass_measured_replaces_its_prediction():
                                                          / (0.02 * c.work(effort, 1, steps, n, True)[1]))
     c.next_is_vcm(effort, 1, 8, steps, r2, n)
     assert not c.vcm_measured and not c.chain_measured
-    # --vcm-passes auto (the default) keeps the prediction whatever is measured
+    # --vcm-passes auto keeps the prediction whatever is measured
     c.measured = False
     c.next_is_vcm(effort, 1, 8, steps, r2, n, vcm_variance=0.02, chain_variance=0.005)
     assert not c.vcm_measured
@@ -464,17 +464,19 @@ def test_warm_up_compiles_the_vcm_pass_and_reset_forgets_it():
 
 
 def test_chain_passes_kept_where_light_subpaths_rarely_contribute():
-    """Where few light subpaths reach what the camera sees (the held-out closet, lit through
-    the gap under its door, 32x32) the chain passes are predicted to remove more error per
+    """--vcm-passes auto (the prediction): where few light subpaths reach what the camera sees
+    (the held-out closet, lit through the gap under its door, 32x32) the chain passes are
+    predicted to remove more error per
     unit of work than vcm passes (measured 0.6-0.8x) and every pass stays a chain pass; in
     mesh-room, where most light subpaths contribute, vcm passes are predicted better (about
     2x) and taken."""
-    p = prepare(_closet(32), method="mbe", seed=1)
+    p = prepare(_closet(32), method="mbe", seed=1, options={"vcm_passes": "auto"})
     for _ in range(24):
         p.method.iterate()
     closet = p.method.pass_choice.stats()
     p.release()
-    p = prepare(load_scene(SCENES / "mesh-room" / "scene.xml", {"res": 32}), method="mbe", seed=1)
+    p = prepare(load_scene(SCENES / "mesh-room" / "scene.xml", {"res": 32}), method="mbe", seed=1,
+                options={"vcm_passes": "auto"})
     for _ in range(24):
         p.method.iterate()
     mesh = p.method.pass_choice.stats()
@@ -689,14 +691,16 @@ def test_mbe_matches_mitsuba_on_the_gap_closeup():
 
 @pytest.mark.convergence
 def test_plain_weights_agree_with_modified_and_with_vcm():
-    """The two MIS variants (one camera subpath per pixel), four camera subpaths per pixel,
-    the defaults and vcm estimate the same image (cornell box, 64x64): means within 1 % of
-    each other and of Mitsuba, and per-pixel RMSE against Mitsuba within 20 % of vcm's at
-    equal iterations."""
+    """The two MIS variants (one camera subpath per pixel), four camera subpaths per pixel (all
+    three with chain passes only: at a fixed K <= 4 --vcm-passes measured would explore vcm
+    passes and, at one camera subpath, take them), the defaults and vcm estimate the same image
+    (cornell box, 64x64): means within 1 % of each other and of Mitsuba, and per-pixel RMSE
+    against Mitsuba within 20 % of vcm's at equal iterations."""
     ref = read_image(REFS / "cornell-box-64.exr")
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 64})
-    images = {mis: render(scene, 100, seed=5, mis=mis, camera_paths=1).image for mis in ("modified", "plain")}
-    images["plain, 4 camera subpaths"] = render(scene, 100, seed=5, mis="plain", camera_paths=4).image
+    images = {mis: render(scene, 100, seed=5, mis=mis, camera_paths=1, vcm_passes="off").image
+              for mis in ("modified", "plain")}
+    images["plain, 4 camera subpaths"] = render(scene, 100, seed=5, mis="plain", camera_paths=4, vcm_passes="off").image
     images["defaults (camera subpaths chosen by the effort balance)"] = render(scene, 100, seed=5).image
     p = prepare(scene, method="vcm", seed=5)
     images["vcm"] = run(p, Budget(iterations=100), quiet=True).image

@@ -43,7 +43,8 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
                            {"res": "64"}),
           "lit-study": ("../tools/heldout/lit-study.xml", "../../tools/heldout/lit-study-64.exr", {"res": "64"}),
           "light-shaft": ("../tools/heldout/light-shaft.xml", "../../tools/heldout/light-shaft-64.exr", {"res": "64"}),
-          "loft-hatch": ("../tools/heldout/loft-hatch.xml", "../../tools/heldout/loft-hatch-64.exr", {"res": "64"})}
+          "loft-hatch": ("../tools/heldout/loft-hatch.xml", "../../tools/heldout/loft-hatch-64.exr", {"res": "64"}),
+          "light-bay": ("../tools/heldout/light-bay.xml", "../../tools/heldout/light-bay-64.exr", {"res": "64"})}
 
 
 def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):

@@ -38,11 +38,12 @@ Effort balance (--camera-paths auto): the light side's variance from the even ag
 odd ladders (light_frame per level and ladder parity), the camera side's from consecutive
 iterations, work counted; K = N_L / n* (docs/mbe.md, "The defaults").
 
-vcm passes (--vcm-passes auto, the default): a pass may instead be one of vcm's (independent
-light subpaths, one camera subpath per pixel, into this film) where the chain passes'
-measurements predict that it removes more error per unit of work; chain passes then keep a
-tenth of the work (methods/pass_choice.py; docs/mbe.md, "vcm passes where the chains do not
-pay").
+vcm passes: a pass may instead be one of vcm's (independent light subpaths, one camera
+subpath per pixel, into this film) where it removes more error per unit of work: by both
+kinds' measured variance per pass (--vcm-passes measured, the default since stop 42), or as
+the chain passes' measurements predict (auto); chain passes then keep a share of the work
+(methods/pass_choice.py; docs/mbe.md, "vcm passes where the chains do not pay", "Measured
+variances at the work they were measured at").
 """
 import math
 
@@ -166,7 +167,7 @@ class Mbe(Vcm):
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
                "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True,
-               "balance": "mse", "uniform_weight": "auto", "vcm_passes": "auto"}
+               "balance": "mse", "uniform_weight": "auto", "vcm_passes": "measured"}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
@@ -369,7 +370,7 @@ class Mbe(Vcm):
             self._chain_pass(it)
 
     def warm_up(self):
-        """A chain pass, then (with --vcm-passes auto) a vcm pass, whose kernels would
+        """A chain pass, then (unless --vcm-passes off) a vcm pass, whose kernels would
         otherwise compile at its first use, mid-render: 0.6-1.5 s at 64x64 with a cold cache,
         which converge's equal-time runs counted as render time."""
         self.iterate()

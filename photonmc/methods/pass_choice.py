@@ -32,17 +32,20 @@ The camera side of a vcm pass is not a chain pass's at K > 1 (there the camera-o
 techniques count K times); near the break-even, chain passes of one camera subpath per pixel,
 run in pairs, measure it (MEASURE_BAND below).
 
---vcm-passes measured (stop 40, an experiment, not the default) compares the kinds by measured
-variances instead: a vcm pass's from vcm's light-path balance (the mean of its pair estimates),
-a chain pass's by batch means of consecutive chain passes (BatchMeansVariance: the warm start
-correlates them), the vcm pass's work with its connections counted once per pixel; where
-chain passes are predicted to win at K <= MEASURE_MAX_K, vcm passes take EXPLORE_SHARE of the
-work until they are measured. It ties with the prediction in four rooms and loses 1.28x in
-the held-out closet, where the vcm passes' rare fireflies make their measured variance read
-low (docs/mbe.md, "Each kind of pass measured"). Since stop 41 the measured ratio decides
-only beyond MEASURED_Z standard errors from 1 (the closet: 1.10x), and chain passes then keep
-CHAIN_WORK_SHARE / ratio^2 of the work (chain_share; docs/mbe.md, "The loft with a quieter
-reference, and a guard on the measured ratio").
+--vcm-passes measured (the default since stop 42; stop 40's experiment) compares the kinds by
+measured variances instead: a vcm pass's from vcm's light-path balance (the mean of its pair
+estimates), a chain pass's by batch means of consecutive chain passes (BatchMeansVariance: the
+warm start correlates them), each set against the mean counted work of the passes it was
+measured on (made_work), the vcm pass's work with its connections counted once per pixel.
+Where chain passes are predicted to win at K <= MEASURE_MAX_K, vcm passes take EXPLORE_SHARE
+of the work until they are measured; those passes only measure and stay out of the film. The
+measured ratio decides only beyond MEASURED_Z standard errors from 1 (nearer, the prediction
+does), and chain passes then keep CHAIN_WORK_SHARE / ratio^2 of the work (chain_share).
+History: the first version lost 1.28x to the prediction in the held-out closet (its vcm passes'
+rare fireflies read low); the guard brought that to 1.10x, and pairing each variance with its
+passes' work (the closet's was judged at 2.3x its chain passes' work) and keeping the
+exploring passes out of the film to about 1.07x, while the light shaft and the loft gain
+4-5 % (docs/mbe.md, stops 40-42). --vcm-passes auto keeps the prediction alone.
 
 A vcm pass traces one camera subpath per pixel. vcm passes of several (each camera subpath a
 whole VCM estimator with the pass's light subpaths) were measured and dropped: chosen by the
