@@ -330,7 +330,7 @@ class PassChoice:
             # variance came out 1.3-2x high where the kinds mix (the light shaft: V_c at K = 1
             # alone 0.011-0.018, a vcm pass 0.009 measured), which the cost model's error the
             # other way hid (docs/mbe.md, "Each kind of pass measured").
-            # The chain pass measured too where it can be (BatchMeansVariance), at its K.
+            # The chain pass measured too where it can be (BatchMeansVariance).
             # Each measured variance is paired with the mean work of the passes it was measured
             # on (made_work): while vcm passes win, the effort balance's K and the steps drift
             # from those of the chain passes made (the held-out closet: measured at K 4-5 and
