@@ -47,10 +47,10 @@ def main():
         chain_pass(it)
         chain.append((time.perf_counter() - t, m.effort.last_camera_paths, m.steps_last))
 
-    def timed_vcm(it):
+    def timed_vcm(it, **kw):      # kw: keep=False for the passes that only measure (stop 42)
         n = m.light_balance.next_light_paths()
         t = time.perf_counter()
-        vcm_pass(it)
+        vcm_pass(it, **kw)
         vcm.append((time.perf_counter() - t, n))
 
     m._chain_pass, m._vcm_pass = timed_chain, timed_vcm
