@@ -245,13 +245,14 @@ def test_measured_variances_are_paired_with_the_work_of_the_passes_they_were_mea
     assert c.work(effort, 10, 12000)[0] > 2.0 * chain_work       # what the balance's K would have counted
 
 
-def test_a_measured_ratio_near_one_by_its_standard_errors_leaves_the_choice_to_the_prediction():
-    """--vcm-passes measured: the measured ratio decides only where it lies more than
+def test_a_measured_ratio_near_one_by_its_standard_errors_is_combined_with_the_prediction():
+    """--vcm-passes measured: the measured ratio decides alone only where it lies more than
     MEASURED_Z standard errors of its logarithm from 1 (both kinds' variances measured, each
-    with its relative error); nearer, the prediction's ratio is used, as under auto. Without
-    the errors, the measured ratio always decides (docs/mbe.md, stop 41)."""
+    with its relative error); nearer, its logarithm and the prediction's are averaged with
+    weights 1 / error^2 (the prediction's error PREDICTION_LOG_ERROR). Without the errors,
+    the measured ratio always decides (docs/mbe.md, stops 41 and 43)."""
     import math
-    from photonmc.methods.pass_choice import MEASURED_Z, PassChoice
+    from photonmc.methods.pass_choice import MEASURED_Z, PREDICTION_LOG_ERROR, PassChoice
     n_light, steps, r2, v_c, v_p, v_u = 4096, 4096, 0.01, 0.01, 0.001, 2.0
     effort = _KnownEffort(v_c, v_p, camera_work=20.0 * n_light)
 
@@ -270,7 +271,12 @@ def test_a_measured_ratio_near_one_by_its_standard_errors_leaves_the_choice_to_t
     wide = 1.05 * math.log(target) / MEASURED_Z / math.sqrt(2.0)      # a log error just above |ln 1.3|
     c.next_is_vcm(effort, 2, 8, steps, r2, n, vcm_variance, chain_variance, (wide, wide))
     assert c.measured_ratio == pytest.approx(target)
-    assert not c.vcm_measured and c.ratio == pytest.approx(predicted.ratio)
+    w_measured, w_predicted = 1.0 / (2.0 * wide ** 2), 1.0 / PREDICTION_LOG_ERROR ** 2
+    combined = math.exp((w_measured * math.log(target) + w_predicted * math.log(predicted.ratio))
+                        / (w_measured + w_predicted))
+    assert not c.vcm_measured and c.ratio == pytest.approx(combined)
+    assert min(target, predicted.ratio) < c.ratio < max(target, predicted.ratio)
+    assert c.stats()["untrusted_combined_with_prediction"] == pytest.approx(combined)
     narrow = 0.95 * math.log(target) / MEASURED_Z / math.sqrt(2.0)
     c.next_is_vcm(effort, 2, 8, steps, r2, n, vcm_variance, chain_variance, (narrow, narrow))
     assert c.vcm_measured and c.chain_measured and c.ratio == pytest.approx(target)

@@ -39,8 +39,10 @@ warm start correlates them), each set against the mean counted work of the passe
 measured on (made_work), the vcm pass's work with its connections counted once per pixel.
 Where chain passes are predicted to win at K <= MEASURE_MAX_K, vcm passes take EXPLORE_SHARE
 of the work until they are measured; those passes only measure and stay out of the film. The
-measured ratio decides only beyond MEASURED_Z standard errors from 1 (nearer, the prediction
-does), and chain passes then keep CHAIN_WORK_SHARE / ratio^2 of the work (chain_share).
+measured ratio decides alone only beyond MEASURED_Z standard errors from 1, and chain passes
+then keep CHAIN_WORK_SHARE / ratio^2 of the work (chain_share); nearer, it is combined with the
+prediction, each estimate of log(ratio) weighted by its inverse squared error (stop 43; until
+then the prediction decided alone there).
 History: the first version lost 1.28x to the prediction in the held-out closet (its vcm passes'
 rare fireflies read low); the guard brought that to 1.10x, and pairing each variance with its
 passes' work (the closet's was judged at 2.3x its chain passes' work) and keeping the
@@ -111,9 +113,13 @@ MIN_PASSES_FOR_BALANCE = 16
 EXPLORE_SHARE = 0.25
 # --vcm-passes measured: the measured ratio overrules the prediction only where it lies more
 # than MEASURED_Z standard errors (of its logarithm, from both kinds' measured variances) from
-# 1; nearer, the prediction decides. Without this the held-out closet, near the break-even,
-# took vcm passes on a vcm variance that read low until a firefly (docs/mbe.md, stop 40/41).
+# 1; nearer, it is combined with the prediction (_ratio). Without this the held-out closet,
+# near the break-even, took vcm passes on a vcm variance that read low until a firefly
+# (docs/mbe.md, stop 40/41).
 MEASURED_Z = 1.0
+# The prediction's error, as a standard error of log(ratio): its vcm pass variance erred
+# 1.3-2x where the kinds mix, and its cost model up to 1.3-1.6x (docs/mbe.md, stops 38 and 40).
+PREDICTION_LOG_ERROR = math.log(2.0)
 MEASURE_BAND = 0.7
 MEASURE_PAIRS = 8
 MEASURE_EVERY = 32
@@ -196,8 +202,9 @@ class PassChoice:
         self.last_pair_at = -MEASURE_EVERY
         self.measured_passes = 0
         self.measured_ratio = None      # --vcm-passes measured: the last measured ratio,
-        self.measured_trusted = 0       # and how often it decided (MEASURED_Z) or the prediction did
+        self.measured_trusted = 0       # and how often it decided alone (MEASURED_Z) or with the prediction
         self.measured_untrusted = 0
+        self.combined_ratio = None      # the last untrusted measured ratio combined with the prediction
 
     def chain_pass_k(self, k: int) -> int:
         """The K of the next chain pass: the balance's K, or 1 in a measurement pair."""
@@ -299,6 +306,7 @@ class PassChoice:
     def _ratio(self, effort, most_k: int, steps: int, radius_sq: float, n_light: int | None = None,
                vcm_variance: float | None = None, chain_variance: float | None = None,
                k: int = 1, relative_errors: tuple = (None, None)) -> float | None:
+        untrusted = None        # an untrusted measured ratio and its log error, to combine with the prediction
         shares = effort.shares()
         if (self.chain_passes < MIN_CHAIN_PASSES or shares is None or self.uniform_passes == 0
                 or self.traced <= 0 or effort.sum_camera_paths <= 0 or not radius_sq > 0):
@@ -353,6 +361,8 @@ class PassChoice:
                 self.measured_trusted += 1
                 return measured
             self.measured_untrusted += 1
+            if measured is not None:
+                untrusted = (measured, log_error)
         self.vcm_measured = self.chain_measured = False
         v_c1 = self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count >= MEASURE_PAIRS else v_c
         v_u1 = self.uniform_r2_sum_k1 / self.uniform_passes_k1 / radius_sq if self.uniform_passes_k1 >= MEASURE_PAIRS else v_u
@@ -365,7 +375,21 @@ class PassChoice:
         vcm = (max(v_c1, 0.0) + v_u1 / n) * self.work(effort, 1, steps, n)[1]
         if not vcm > 0.0 or not math.isfinite(chain):
             return None
-        return chain / vcm
+        predicted = chain / vcm
+        if untrusted is not None and predicted > 0.0:
+            # A measured ratio within MEASURED_Z standard errors of 1 still says which way the
+            # kinds lean, and the prediction errs too: the two estimates of log(ratio) are
+            # combined by their inverse squared errors (PREDICTION_LOG_ERROR for the
+            # prediction's). Left to the prediction alone, the held-out light bay's untrusted
+            # decisions (a measured 1.1-1.3 against a predicted 0.5-0.6) made chain passes,
+            # about a third of a 60 s render where vcm passes win (docs/mbe.md, stop 43).
+            measured, log_error = untrusted
+            w_measured = 1.0 / max(log_error, 1e-3) ** 2
+            w_predicted = 1.0 / PREDICTION_LOG_ERROR ** 2
+            self.combined_ratio = math.exp((w_measured * math.log(max(measured, 1e-300))
+                                            + w_predicted * math.log(predicted)) / (w_measured + w_predicted))
+            return self.combined_ratio
+        return predicted
 
     def _balanced_light_paths(self, effort, steps: int, v_c: float, v_u: float) -> int:
         """The light subpaths N of a vcm pass that minimise (V_c + V_u / N) (C + N c): the
@@ -437,5 +461,6 @@ class PassChoice:
                 "measured_k1_passes": self.measured_passes,
                 "measured_chain_over_vcm": self.measured_ratio,
                 "measured_ratio_trusted": self.measured_trusted, "measured_ratio_untrusted": self.measured_untrusted,
+                "untrusted_combined_with_prediction": self.combined_ratio,
                 "camera_variance_k1": self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count else None,
                 "vcm_pass_light_paths_mean": (self.vcm_light_paths_sum / self.vcm_passes if self.vcm_passes else None)}
