@@ -176,7 +176,8 @@ def _add_vcm_options(parser):
     g.add_argument("--vcm-passes", choices=["auto", "measured", "off"],
                    help="mbe: measured (default) makes a pass a vcm pass (independent light subpaths, no "
                         "chains) where both kinds' measured variance per pass x work says it removes more error "
-                        "(vcm passes measured first where chain passes are predicted to win; docs/mbe.md, stop 42); "
+                        "(vcm passes measured first where chain passes are predicted to win; a measured ratio "
+                        "within its error of 1 is combined with the prediction; docs/mbe.md, stops 42-43); "
                         "auto: the same choice as the chain passes' measurements predict it; off: chain passes "
                         "only (docs/mbe.md, 'vcm passes where the chains do not pay')")
     g.add_argument("--balance", choices=["mse", "relmse"],
