@@ -372,6 +372,78 @@ def test_batch_means_see_the_correlation_between_chain_passes(rho):
     assert measured.pass_variance() == pytest.approx(expected, rel=0.05)
 
 
+def _chain_bias_after(rho, passes, beta=0.0, noise=25.0, pixels=1000, variance_scale=1.0, halves=False, seed=4):
+    """ChainBias fed synthetic passes: a light side of 100 (luminance summed over `pixels`
+    equal pixels), the uniform proposals' estimate with `noise`, the chains' biased by rho
+    (halved at each doubling of the pass length where `halves`) with as much noise again;
+    one pass's variance summed over pixels as their independent noise would make it."""
+    from photonmc.methods.chain_bias import ChainBias
+    rng = np.random.default_rng(seed)
+    light = 100.0
+    bias = ChainBias()
+    light_sq_sum = pixels * (light / pixels) ** 2
+    variance_sum = variance_scale * 2.0 * noise ** 2
+    lengths = []
+    for p in range(passes):
+        r = rho / bias.factor if halves else rho
+        uniform = light + noise * rng.normal()
+        chains = light * (1.0 + r) + noise * rng.normal()
+        bias.observe(beta, chains, uniform)
+        if bias.lengthen(p + 1, variance_sum, light_sq_sum):
+            lengths.append(p + 1)
+    return bias, lengths
+
+
+def test_the_chains_bias_is_measured_against_the_uniform_proposals():
+    """Unbiased chains never lengthen their passes (a significant mean alone is not enough:
+    the squared bias it implies must outweigh the film's variance); a bias is measured
+    relative to the light side, times the chains' weight 1 - beta."""
+    bias, lengths = _chain_bias_after(0.0, 6000)
+    assert lengths == [] and bias.factor == 1
+    rho, se = bias.relative()
+    assert abs(rho) < 4 * se and se < 0.01
+    bias, _ = _chain_bias_after(0.1, 400, beta=0.75, variance_scale=1e9)
+    rho, se = bias.relative()
+    assert abs(rho - 0.025) < 4 * se
+
+
+def test_chain_passes_lengthen_where_their_bias_outweighs_the_noise():
+    """A start-up bias that halves with each doubling of the pass length: the passes double
+    while the bias still outweighs the film's noise (the checks start again at each length),
+    and not at all where the noise is far larger."""
+    from photonmc.methods.chain_bias import MIN_PASSES
+    bias, lengths = _chain_bias_after(-0.04, 4000, noise=10.0, pixels=4, halves=True)
+    assert bias.factor >= 4 and lengths[0] >= MIN_PASSES
+    # judged as the passes at one length double: 64, 128, 256, ... after the last doubling
+    since = [b - a for a, b in zip([0] + lengths, lengths)]
+    assert all(n >= MIN_PASSES and n & (n - 1) == 0 for n in since), since
+    for passes, rho, se in bias.doublings:
+        assert rho < 0 and abs(rho) > 3 * se
+    first = bias.doublings[0]
+    assert abs(first[1] + 0.04) < 4 * first[2]
+    noisy, lengths = _chain_bias_after(-0.04, 4000, noise=10.0, pixels=4, halves=True, variance_scale=1e3)
+    assert lengths == [] and noisy.factor == 1
+
+
+def test_chain_pass_length_follows_the_chains_bias(write_scene):
+    """In mbe, the two estimates of each chain pass's light side agree on the furnace (no
+    bias the chains' restarts leave there: measured within its standard error, which a wrong
+    scale of either estimate would far exceed) and the pass length follows ChainBias's factor."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    p = prepare(scene, method="mbe", seed=3, max_depth=3, options={"vcm_passes": "off", "light_paths": 512})
+    try:
+        run(p, Budget(iterations=96), quiet=True)
+        m = p.method
+        stats = m.method_stats()["chain_bias"]
+        assert stats["pass_length_factor"] == 1 and stats["passes_at_this_length"] == 96
+        assert abs(stats["relative_bias"]) < 4 * stats["relative_bias_error"] and stats["relative_bias_error"] < 0.01
+        m.chain_bias.factor = 4
+        m.iterate()
+        assert m.steps_last == 4 * 512
+    finally:
+        p.release()
+
+
 def _measured_kinds(choice, ratio, k, passes, v_c1=0.005, ratio_at_k=None):
     """K of each of `passes` chain passes that PassChoice asks for at a fixed ratio (and ratio
     predicted with V_c at K, the same by default) and balance K, each K = 1 pair reporting a

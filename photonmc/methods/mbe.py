@@ -22,7 +22,10 @@ the iteration's stored camera subpaths. Each iteration:
    F(u) w / (b_l (T_V/b'_V + T_C/b'_C)) times b_l n / N_l (balance heuristic between the
    chains, b' the previous iteration's normalisations, N_l the level's recorded weight);
 4. the chains' splats are kept per level, scaled by the pass's b_l at its end and added to
-   the frame, which becomes one sample of every pixel (SplatFilm).
+   the frame, which becomes one sample of every pixel (SplatFilm);
+5. the chains' estimate of the light side is set against the uniform proposals' (plain Monte
+   Carlo, unbiased): where the chains' start-up bias has come to outweigh the film's noise,
+   the chain passes double in length (methods/chain_bias.py).
 
 Pairing: the camera subpath comes from a coordinate of u, so T(u) is a function of the state
 alone (what a Markov chain needs) and a uniform proposal pairs uniformly over the pixels; a
@@ -78,6 +81,7 @@ from ..kernels.sampling import luminance, vec3
 from ..kernels.subpath_store import BYTES_PER_STORED_VERTEX
 from ..kernels.vcm_mis import PathVertex
 from .base import MethodSettings
+from .chain_bias import ChainBias
 from .effort import EffortBalance, UniformWeight, uniform_weight_option
 from .guided import LADDER_BURN_IN
 from .light_balance import LightPathBalance
@@ -227,7 +231,7 @@ class Mbe(Vcm):
         self.uniform_probe = f.scalar(ti.i32, c)         # 1 while ladder c probes a uniform proposal
         self.last_estimate = f.scalar(ti.f64, w * h)     # last iteration's luminance per pixel (effort)
         self.batch_sum = f.scalar(ti.f64, w * h)         # the same summed over a batch of chain passes
-        self.row_sums = f.vector(4, ti.f64, h)            # _end_pass's effort sums per image row
+        self.row_sums = f.vector(7, ti.f64, h)            # _end_pass's sums per image row
         self.b_mis = f.scalar(ti.f32, self.n_levels)     # previous pass's normalisations (MIS only)
         self.pre_scale = f.scalar(ti.f32, self.n_levels)  # previous pass's level scales (see deposit)
         # light subpaths traced, their segments, their shadow rays, the camera vertices they
@@ -317,6 +321,8 @@ class Mbe(Vcm):
                                       measured=self.options["vcm_passes"] == "measured")
         self.chain_batches = BatchMeansVariance(self.n_pixels)
         self.batch_passes = 0
+        # the chains' own bias against the uniform proposals', and the pass length it asks for
+        self.chain_bias = ChainBias()
         # the vcm passes' light subpaths, measured as vcm's own are (methods/light_balance.py)
         self.light_balance = LightPathBalance(self.n_light)
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
@@ -339,8 +345,9 @@ class Mbe(Vcm):
 
     # -- the iteration -----------------------------------------------------------------
     def _steps_this_pass(self) -> int:
-        """--light-paths chain steps, more where the last pass's visible fraction b_V would
-        leave a ladder fewer than REGENERATIONS visible uniform proposals (twice the last
+        """--light-paths chain steps (times ChainBias's factor, which doubles where the chains'
+        start-up bias outweighs the film's noise), more where the last pass's visible fraction
+        b_V would leave a ladder fewer than REGENERATIONS visible uniform proposals (twice the last
         length after a pass that found none), at most MAX_PASS_FACTOR x --light-paths. The
         pass's light subpath count N_L is this length: the MIS counts and normalisations
         follow it. (A pass that grew toward the balance's n* where K is 1 ran away on the
@@ -348,7 +355,7 @@ class Mbe(Vcm):
         correlated over a pass, and the radius, shrinking per pass, stayed large; a pass that
         shrank toward n* where the camera side dominates helped the caustic and the Cornell
         box and lost 4-13 % in four gap-lit rooms; docs/mbe.md.)"""
-        n = self.n_light
+        n = min(self.n_light * self.chain_bias.factor, MAX_PASS_FACTOR * self.n_light)
         if self.iterations > 0:
             b0 = self.b_last[0]
             uniform_per_step = self.pool.large_step if self.pool.large_step > 0 else 1.0
@@ -452,15 +459,22 @@ class Mbe(Vcm):
         scale = np.where(recorded > 0, b * steps / np.maximum(recorded, 1e-300), 0.0)
         # The light side: beta x the uniform proposals' estimate + (1 - beta) x the chains'.
         frame_scales, sum_scales, uniform_halves, uniform_counts, beta = self._pass_scales(steps, b, scale, tallies)
-        sums = self._end_pass(*frame_scales, *sum_scales, self.relative_balance,
+        # Each side at its full weight, in radiance: the chains' estimate (levels 0 and 1) and
+        # the uniform proposals' (ChainBias compares them)
+        n_uniform = float(tallies["uniform_per_chain"].sum())
+        unweighted = (*(scale * self.film.unit / self.pre_scale_host.astype(np.float64)),
+                      steps / n_uniform * self.film.unit if n_uniform > 0 else 0.0)
+        sums = self._end_pass(*frame_scales, *sum_scales, *unweighted, self.relative_balance,
                               max(self.film.film.samples_per_pixel, 0))
         self.film.count_flushed()
-        if self.pass_choice.measured:       # the chain passes' batch means (pass_choice.BatchMeansVariance)
-            self.batch_passes += 1
-            if self.batch_passes == BatchMeansVariance.BATCH:
-                self.chain_batches.observe_batch(self.batch_sum.to_numpy())
-                self.batch_sum.fill(0.0)
-                self.batch_passes = 0
+        # the chain passes' batch means (pass_choice.BatchMeansVariance)
+        self.batch_passes += 1
+        if self.batch_passes == BatchMeansVariance.BATCH:
+            self.chain_batches.observe_batch(self.batch_sum.to_numpy())
+            self.batch_sum.fill(0.0)
+            self.batch_passes = 0
+        if n_uniform > 0:
+            self._judge_chain_bias(beta, sums)
         self._observe_effort(steps, k, n, sums, beta, uniform_halves, uniform_counts, tallies["extra"][0])
         # The next pass's MIS normalisations, level scales and mutation sizes stay on the host
         # until the next _camera_side writes them (one launch less per iteration).
@@ -475,6 +489,20 @@ class Mbe(Vcm):
             self.b_sum += b
             self.passes_with_b += 1
         self.work_done += steps + n_subpaths
+
+    def _judge_chain_bias(self, beta: float, sums):
+        """The pass's chains against its uniform proposals (methods/chain_bias.py); where their
+        bias has come to outweigh the film's noise, the chain passes double in length, and the
+        measurements made of passes of the old length (the batch means, the work they are set
+        against) start again."""
+        self.chain_bias.observe(beta, float(sums[4]), float(sums[5]))
+        variance = self.chain_batches.pass_variance()
+        if self.chain_bias.lengthen(self.pass_choice.chain_passes + 1,
+                                    None if variance is None else variance * self.n_pixels, float(sums[6])):
+            self.chain_batches = BatchMeansVariance(self.n_pixels)
+            self.batch_sum.fill(0.0)
+            self.batch_passes = 0
+            self.pass_choice.restart_made_work()
 
     def _pass_scales(self, steps: int, b, scale, tallies):
         """The pass's scales: (the frame's: chain levels 0 and 1 and the uniform proposals'),
@@ -558,7 +586,8 @@ class Mbe(Vcm):
     @ti.kernel
     def _end_pass(self, s0: ti.f64, s1: ti.f64, su: ti.f64, full0: ti.f64, full1: ti.f64, full_u: ti.f64,
                   even0: ti.f64, even1: ti.f64, even_u: ti.f64, odd0: ti.f64, odd1: ti.f64, odd_u: ti.f64,
-                  relative: ti.template(), samples: ti.i32) -> ti.types.vector(4, ti.f64):
+                  chains0: ti.f64, chains1: ti.f64, uniform: ti.f64,
+                  relative: ti.template(), samples: ti.i32) -> ti.types.vector(7, ti.f64):
         """The pass's end in one launch and one sweep over the pixels (each launch costs
         0.1-0.3 ms on the host, a few per cent of a 64x64 iteration). At each pixel, first its
         terms of the effort sums, before the light frames join the frame: (this iteration's
@@ -567,7 +596,9 @@ class Mbe(Vcm):
         splats at their levels' final scales (s0, s1) and the uniform proposals' (su) join the
         frame, which joins the film as one sample of the pixel. The sums are added per row,
         then over rows in a fixed order, so that K and beta, and so the image, do not depend
-        on thread timing.
+        on thread timing. Then the chains' light side and the uniform proposals', each at its
+        full weight (chains0, chains1, uniform), and the film's squared pixel values so far,
+        for ChainBias (methods/chain_bias.py).
         relative (--balance relmse): each pixel weighted by 1 / (m^2 + eps), m its running
         mean over `samples` iterations, eps = (0.1 x the image's mean m)^2 (converge's relMSE)."""
         w = ti.static(self.dscene.width)
@@ -582,7 +613,9 @@ class Mbe(Vcm):
             eps = ti.max((0.1 * mean_all / ti.static(self.n_pixels)) ** 2, 1e-30)
         ti.loop_config(serialize=ti.static(runtime.serial_loop(self.n_pixels)))
         for y in range(self.dscene.height):
-            row = ti.Vector([0.0, 0.0, 0.0, 0.0], ti.f64)     # spread, halves, halves_u, product
+            # spread, halves, halves_u, product; the chains' and the uniform proposals' light
+            # sides at full weight; the film's squared pixel values (ChainBias)
+            row = ti.Vector([0.0] * 7, ti.f64)
             for x in range(w):
                 f0e = ti.cast(self.light_frame[0, y, x], ti.f64)
                 f0o = ti.cast(self.light_frame[1, y, x], ti.f64)
@@ -603,7 +636,11 @@ class Mbe(Vcm):
                 self.batch_sum[i] += e
                 h = (f0e * even0 + f1e * even1 - f0o * odd0 - f1o * odd1).dot(y_weights)
                 hu = (ue * even_u - uo * odd_u).dot(y_weights)
-                row += weight * ti.Vector([d * d, h * h, hu * hu, h * hu], ti.f64)
+                row += weight * ti.Vector([d * d, h * h, hu * hu, h * hu, 0.0, 0.0, 0.0], ti.f64)
+                chains = ((f0e + f0o) * chains0 + (f1e + f1o) * chains1).dot(y_weights)
+                so_far = self.film.film.sum[y, x].dot(y_weights) * inv_samples
+                row += ti.Vector([0.0, 0.0, 0.0, 0.0, chains, (ue + uo).dot(y_weights) * uniform, so_far * so_far],
+                                 ti.f64)
                 # each level's two halves summed exactly (fixed point) before the scale
                 total = ti.cast(self.light_frame[0, y, x] + self.light_frame[1, y, x], ti.f64) * s0 \
                     + ti.cast(self.light_frame[2, y, x] + self.light_frame[3, y, x], ti.f64) * s1 \
@@ -615,7 +652,7 @@ class Mbe(Vcm):
                     self.uniform_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
                 self.film.flush_pixel(y, x)
             self.row_sums[y] = row
-        sums = ti.Vector([0.0, 0.0, 0.0, 0.0], ti.f64)
+        sums = ti.Vector([0.0] * 7, ti.f64)
         ti.loop_config(serialize=True)
         for y in range(self.dscene.height):
             sums += self.row_sums[y]
@@ -884,6 +921,7 @@ class Mbe(Vcm):
             "uniform_weight": self.beta.value, "uniform_weight_auto": self.beta.auto,
             "large_step_last_iteration": self.pool.large_step,
             "effort": self.effort.stats(),
+            "chain_bias": self.chain_bias.stats(),
             "passes": {**self.pass_choice.stats(), "light_path_balance": self.light_balance.stats()},
             "chains": self.n_chains,
             "mis": "modified" if self.modified_mis else "plain",

@@ -205,6 +205,7 @@ class PassChoice:
         self.measured_trusted = 0       # and how often it decided alone (MEASURED_Z) or with the prediction
         self.measured_untrusted = 0
         self.combined_ratio = None      # the last untrusted measured ratio combined with the prediction
+        self.made_from = (0, 0.0, 0.0, 0.0)  # chain passes, K, steps, K x steps when their variance began
 
     def chain_pass_k(self, k: int) -> int:
         """The K of the next chain pass: the balance's K, or 1 in a measurement pair."""
@@ -407,13 +408,20 @@ class PassChoice:
         best = math.sqrt(camera * v_u / (light * v_c))
         return int(min(max(round(best), fewest), self.n_light))
 
+    def restart_made_work(self) -> None:
+        """The chain passes' variance is measured afresh (their length changed: ChainBias): from
+        now on made_work means the chain passes made from here."""
+        self.made_from = (self.chain_passes, self.k_sum, self.steps, self.k_steps_sum)
+
     def made_work(self, effort) -> tuple[float, float | None]:
-        """The mean counted work of the chain passes made, and of the vcm passes made (None
-        before any), under --vcm-passes measured's cost model (connections per pixel): the
-        passes whose variances were measured. Work is linear in K, steps, K x steps and the
-        light subpaths, so the work at their means is the mean work."""
-        n = max(self.chain_passes, 1)
-        chain = self.work(effort, self.k_sum / n, self.steps / n, k_steps=self.k_steps_sum / n)[0]
+        """The mean counted work of the chain passes made (since restart_made_work), and of the
+        vcm passes made (None before any), under --vcm-passes measured's cost model
+        (connections per pixel): the passes whose variances were measured. Work is linear in K,
+        steps, K x steps and the light subpaths, so the work at their means is the mean work."""
+        passes, k_sum, steps, k_steps = (a - b for a, b in zip(
+            (self.chain_passes, self.k_sum, self.steps, self.k_steps_sum), self.made_from))
+        n = max(passes, 1)
+        chain = self.work(effort, k_sum / n, steps / n, k_steps=k_steps / n)[0]
         if self.vcm_passes == 0:
             return chain, None
         return chain, self.work(effort, 1, 1, self.vcm_light_paths_sum / self.vcm_passes,
