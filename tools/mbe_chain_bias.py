@@ -1,8 +1,9 @@
 """mbe's chains against its own uniform proposals, pass by pass (docs/mbe.md, "The chains'
-own bias, pass by pass").
+own bias, pass by pass"); the guided photon methods' likewise (docs/guiding.md).
 
     python tools/mbe_chain_bias.py SCENE [-D res=64] [--reference REF.exr] [--passes 600]
                                    [--seeds 0,1] [--option NAME=JSON ...]
+                                   [--method mbe|visibility|spatial-tf]
 
 Every chain pass estimates its light side twice from the same camera subpaths and the same
 merging radius: the chains' estimate C (their records, scaled by the pass's normalisations)
@@ -13,6 +14,11 @@ reference. Prints, per seed and pooled, the mean luminance of camera + C and of 
 (against the reference's when given) and of C - U relative to U, with standard errors over
 the passes (the passes are independent: docs/mbe.md, stop 43). Chain passes only
 (--vcm-passes off); options by their API names, e.g. --option camera_paths=5.
+
+visibility and spatial-tf keep the uniform photons' flux in an accumulator of its own next
+to the chain levels' (methods/guided.py): each pass's flux summed over the measurement
+points, the levels' (C) against the uniform photons' (U), gives their chains' own bias the
+same way (only C - U is printed: a pixel's estimate is not linear in its flux).
 """
 import argparse
 import json
@@ -53,6 +59,21 @@ def _record_light_sides(method, rows):
     method._pass_scales = wrapped
 
 
+def _record_fluxes(method, rows):
+    """The guided methods: wrap _after_pass, which sees the pass's flux accumulators (chain
+    levels, then the uniform photons') and their scales before the update clears them."""
+    original = method._after_pass
+
+    def wrapped(level_scale):
+        phi = method.phi.to_numpy().astype(np.float64) @ Y           # (levels + 1, MPs)
+        raw = method.raw_scale.to_numpy()
+        per_accumulator = phi.sum(axis=1) * raw
+        rows.append((0.0, per_accumulator[:-1].sum(), per_accumulator[-1], method.beta.value))
+        return original(level_scale)
+
+    method._after_pass = wrapped
+
+
 def _mean_se(x):
     x = np.asarray(x, np.float64)
     return x.mean(), x.std(ddof=1) / np.sqrt(len(x))
@@ -66,21 +87,22 @@ def main():
     ap.add_argument("--passes", type=int, default=600)
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--option", action="append", default=[], metavar="NAME=JSON")
+    ap.add_argument("--method", default="mbe", choices=["mbe", "visibility", "spatial-tf"])
     args = ap.parse_args()
     params = dict(d.split("=", 1) for d in args.defines)
-    options = {"vcm_passes": "off"}
+    options = {"vcm_passes": "off"} if args.method == "mbe" else {}
     for o in args.option:
         name, value = o.split("=", 1)
         options[name] = json.loads(value)
     ref_mean = None
-    if args.reference:
+    if args.reference and args.method == "mbe":
         ref_mean = float(luminance(read_image(args.reference)).mean())
     pooled = []
     for seed in map(int, args.seeds.split(",")):
-        p = prepare(args.scene, method="mbe", seed=seed, options=options, params=params)
+        p = prepare(args.scene, method=args.method, seed=seed, options=options, params=params)
         rows = []
         try:
-            _record_light_sides(p.method, rows)
+            (_record_light_sides if args.method == "mbe" else _record_fluxes)(p.method, rows)
             while len(rows) < args.passes:
                 p.method.iterate()
         finally:
