@@ -74,10 +74,10 @@ class ChainBias:
         """Whether to double the chain passes' length now. chain_passes: those in the film;
         pass_variance_sum: one chain pass's variance summed over pixels (batch means, so with
         the passes' correlation), None before it is known; light_sq_sum: the film's squared
-        pixel values summed (luminance): the bias is taken as the same share of each pixel
-        (of all of it, not only its light side: the bias is overstated, never understated). The film's squared bias from the chain passes is about
-        (P_c / P)^2 x bias^2, its variance from them P_c V_c / P^2: the bias outweighs it when
-        P_c bias^2 > V_c."""
+        pixel values summed (luminance): the bias is taken as the same share of each pixel,
+        camera side included (which overstates it where the camera side is a large share).
+        The film's squared bias from the chain passes is about (P_c / P)^2 x bias^2, its
+        variance from them P_c V_c / P^2: the bias outweighs it when P_c bias^2 > V_c."""
         judged_now = self.passes >= MIN_PASSES and self.passes & (self.passes - 1) == 0
         r = self.relative()
         if not judged_now or r is None or pass_variance_sum is None or self.factor >= MAX_FACTOR:
