@@ -53,7 +53,7 @@ def _record_light_sides(method, rows):
                          + (light[2] + light[3]).mean() * scale[1] / pre[1])
         n_uniform = float(tallies["uniform_per_chain"].sum())
         uniform_side = unit * (uniform[0] + uniform[1]).mean() * steps / n_uniform if n_uniform > 0 else np.nan
-        rows.append((unit * camera.mean(), chains, uniform_side, result[4]))
+        rows.append((unit * camera.mean(), chains, uniform_side, result[-1]))   # beta
         return result
 
     method._pass_scales = wrapped

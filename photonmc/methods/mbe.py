@@ -458,12 +458,8 @@ class Mbe(Vcm):
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * steps / np.maximum(recorded, 1e-300), 0.0)
         # The light side: beta x the uniform proposals' estimate + (1 - beta) x the chains'.
-        frame_scales, sum_scales, uniform_halves, uniform_counts, beta = self._pass_scales(steps, b, scale, tallies)
-        # Each side at its full weight, in radiance: the chains' estimate (levels 0 and 1) and
-        # the uniform proposals' (ChainBias compares them)
-        n_uniform = float(tallies["uniform_per_chain"].sum())
-        unweighted = (*(scale * self.film.unit / self.pre_scale_host.astype(np.float64)),
-                      steps / n_uniform * self.film.unit if n_uniform > 0 else 0.0)
+        frame_scales, sum_scales, unweighted, uniform_halves, uniform_counts, beta = \
+            self._pass_scales(steps, b, scale, tallies)
         sums = self._end_pass(*frame_scales, *sum_scales, *unweighted, self.relative_balance,
                               max(self.film.film.samples_per_pixel, 0))
         self.film.count_flushed()
@@ -473,7 +469,7 @@ class Mbe(Vcm):
             self.chain_batches.observe_batch(self.batch_sum.to_numpy())
             self.batch_sum.fill(0.0)
             self.batch_passes = 0
-        if n_uniform > 0:
+        if unweighted[2] > 0.0:         # the pass had uniform proposals
             self._judge_chain_bias(beta, sums)
         self._observe_effort(steps, k, n, sums, beta, uniform_halves, uniform_counts, tallies["extra"][0])
         # The next pass's MIS normalisations, level scales and mutation sizes stay on the host
@@ -507,8 +503,9 @@ class Mbe(Vcm):
     def _pass_scales(self, steps: int, b, scale, tallies):
         """The pass's scales: (the frame's: chain levels 0 and 1 and the uniform proposals'),
         (the effort sums': the same in radiance, then each ladder parity's half alone, for
-        levels 0, 1 and the uniform proposals), the halves' uniform scales and uniform
-        proposals, beta. Each half is
+        levels 0, 1 and the uniform proposals), each side at its full weight (the chains'
+        levels and the uniform proposals', for ChainBias), the halves' uniform scales and
+        uniform proposals, beta. Each half is
         scaled by its own recorded weight (or its own uniform proposals), so that it is an
         estimate of the whole light side by itself."""
         uniform_per_chain = tallies["uniform_per_chain"]
@@ -527,7 +524,8 @@ class Mbe(Vcm):
             uniform_halves.append(steps / n_u * self.film.unit if n_u > 0 else 0.0)
         full_uniform = beta * uniform_scale * self.film.unit
         sums = (*full, full_uniform, *halves[0], uniform_halves[0], *halves[1], uniform_halves[1])
-        return frame, sums, uniform_halves, uniform_counts, beta
+        unweighted = (*(scale * unit), uniform_scale * self.film.unit)
+        return frame, sums, unweighted, uniform_halves, uniform_counts, beta
 
     def _observe_effort(self, steps: int, k: int, vertices: int, sums, beta: float, uniform_halves, uniform_counts,
                         light_counters):
