@@ -47,7 +47,9 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "light-bay": ("../tools/heldout/light-bay.xml", "../../tools/heldout/light-bay-64.exr", {"res": "64"}),
           # Held out from the combined fallback of mbe's pass choice (stop 43).
           "ceiling-slot": ("../tools/heldout/ceiling-slot.xml", "../../tools/heldout/ceiling-slot-64.exr",
-                           {"res": "64"})}
+                           {"res": "64"}),
+          # Held out from mbe's chain-bias rule (stop 44).
+          "side-slot": ("../tools/heldout/side-slot.xml", "../../tools/heldout/side-slot-64.exr", {"res": "64"})}
 
 
 def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):
