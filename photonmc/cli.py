@@ -180,6 +180,10 @@ def _add_vcm_options(parser):
                         "within its error of 1 is combined with the prediction; docs/mbe.md, stops 42-43); "
                         "auto: the same choice as the chain passes' measurements predict it; off: chain passes "
                         "only (docs/mbe.md, 'vcm passes where the chains do not pay')")
+    g.add_argument("--film-weights", choices=["variance", "equal"],
+                   help="mbe: how the image combines the chain passes' film and the vcm passes': by their "
+                        "measured variances per pass, moved toward equal weights by those estimates' errors "
+                        "(variance, default), or every pass alike (equal) (docs/mbe.md, 'Two films')")
     g.add_argument("--balance", choices=["mse", "relmse"],
                    help="mbe, sppm, visibility, spatial-tf: what the effort balance behind --camera-paths auto "
                         "(and sppm's --photons auto) minimises: the image's MSE (default) or its relative MSE, each "
@@ -196,7 +200,8 @@ def _method_options(args) -> dict:
             "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis,
             "large_step": args.large_step, "suffix_mutation": args.suffix_mutation,
             "mutation": args.mutation, "warm_start": args.warm_start,
-            "balance": args.balance, "uniform_weight": args.uniform_weight, "vcm_passes": args.vcm_passes}
+            "balance": args.balance, "uniform_weight": args.uniform_weight, "vcm_passes": args.vcm_passes,
+            "film_weights": args.film_weights}
 
 
 def _seed_list(text: str) -> list[int]:

@@ -525,6 +525,41 @@ def test_measured_pass_choice_keeps_the_furnace(write_scene):
     assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected, lum.mean()
 
 
+def test_the_image_combines_the_two_films_by_their_measured_variances(write_scene):
+    """The chain passes and the vcm passes each fill their own film, and the image is their
+    combination by the weights methods/film_weights.py gives from the two kinds' measured
+    variances per pass (docs/mbe.md, "Two films"); --film-weights equal weighs every pass
+    alike, the mean of all passes. The passes are made by hand (80 chain passes, enough for
+    their batch means, then 40 vcm passes, enough for their pairs), so that both films fill
+    whatever the pass choice would do; a chain pass of four camera subpaths per pixel has
+    about a quarter of a vcm pass's variance. In the furnace both reach the analytic radiance."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    expected = furnace_expectation(3)
+    for weights in ("variance", "equal"):
+        p = prepare(scene, method="mbe", seed=2, max_depth=3, options={"camera_paths": 4, "film_weights": weights})
+        m = p.method
+        for kind in ["chain"] * 80 + ["vcm"] * 40:
+            (m._chain_pass if kind == "chain" else m._vcm_pass)(m.iteration_index)
+            m.iterations += 1
+        chain, vcm = m.film.film, m.independent.film.film
+        films = m.method_stats()["films"]
+        print(weights, films)
+        assert (films["chain_passes"], films["vcm_passes"]) == (chain.samples_per_pixel, vcm.samples_per_pixel) == (80, 40)
+        w_c, w_v = m.film_weights()
+        assert w_c + w_v == pytest.approx(1.0) and films["chain_weight"] == w_c
+        assert np.allclose(m.image(), w_c * chain.sum.to_numpy() / 80 + w_v * vcm.sum.to_numpy() / 40,
+                           rtol=1e-12, atol=0)
+        if weights == "equal":
+            assert w_c == pytest.approx(80 / 120)
+            assert np.allclose(m.image(), (chain.sum.to_numpy() + vcm.sum.to_numpy()) / 120, rtol=1e-12, atol=0)
+        else:       # both variances measured, and they differ by more than their errors
+            ratio = films["log_vcm_over_chain_variance_shrunk"]
+            assert ratio != 0.0 and w_c / w_v == pytest.approx(2.0 * math.exp(ratio))
+        lum = luminance(m.image())
+        p.release()
+        assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected, lum.mean()
+
+
 def test_warm_up_compiles_the_vcm_pass_and_reset_forgets_it():
     """warm_up() (what converge runs before it resets and starts its clock) makes a vcm pass
     too, so that its kernels do not compile mid-measurement (0.6-1.5 s at 64x64 with a cold
@@ -728,6 +763,7 @@ def test_seed_determinism():
     ({"camera_paths": "auto", "chains": 1}, "--chains 2 or more"), ({"balance": "l2"}, "--balance"),
     ({"uniform_weight": 1.5}, "--uniform-weight"), ({"uniform_weight": "most"}, "--uniform-weight"),
     ({"uniform_weight": True}, "--uniform-weight"), ({"vcm_passes": "sometimes"}, "--vcm-passes"),
+    ({"film_weights": "optimal"}, "--film-weights"),
 ])
 def test_bad_options(options, message):
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})

@@ -1,23 +1,45 @@
 #!/usr/bin/env bash
-# Equal-time comparison of mbe against vcm, visibility and pt (docs/mbe.md): every bundled
-# scene, the close-up of the gap-lit room, and the two held-out scenes (tools/heldout/).
-#   [METHODS=mbe,vcm,visibility,pt] bash tools/mbe_suite.sh [SECONDS] [OUTDIR] [converge options...]
+# Equal-time comparison of mbe against vcm, visibility and pt (docs/mbe.md, docs/convergence.md):
+# every bundled scene, the close-up of the gap-lit room, and the held-out rooms (tools/heldout/)
+# that have a reference. ROOMS (space-separated names) runs only those; a summary table of
+# RMSE with the reference's noise removed goes to OUTDIR/summary.md.
+#   [METHODS=mbe,vcm,visibility,pt] [ROOMS="light-bay closet-door"] bash tools/mbe_suite.sh [SECONDS] [OUTDIR] \
+#       [converge options, e.g. --seeds 0,1,2,3 --interleave]
 set -euo pipefail
 T=${1:-20}
 OUT=${2:-mbe-results}
 METHODS=${METHODS:-mbe,vcm,visibility,pt}
+ROOMS=${ROOMS:-}
 EXTRA=("${@:3}")
-run() { photonmc converge "$1" --methods "$METHODS" --reference "$2" --time "$T" --out "$OUT/$3" "${@:4}" \
-        "${EXTRA[@]}"; }
-run scenes/cornell-box/scene.xml tests/refs/cornell-box-64.exr cornell-box -D res=64
-run scenes/mitsuba-style/scene.xml tests/refs/mitsuba-style-80x60.exr mitsuba-style -D resx=80 -D resy=60
-run scenes/mesh-room/scene.xml tests/refs/mesh-room-64.exr mesh-room -D res=64
-run scenes/caustic/scene.xml tests/refs/caustic-64.exr caustic -D res=64
-run scenes/light-gap/scene.xml tests/refs/light-gap-64.exr light-gap -D res=64
-run scenes/light-gap/scene.xml tests/refs/light-gap-closeup-64.exr light-gap-closeup -D res=64 -D fov=12 \
+run() {
+    local name=$1 scene=$2 ref=$3
+    if [[ -n "$ROOMS" && " $ROOMS " != *" $name "* ]]; then return; fi
+    photonmc converge "$scene" --methods "$METHODS" --reference "$ref" --time "$T" --out "$OUT/$name" "${@:4}" \
+        "${EXTRA[@]}"
+}
+held() { run "$1" "tools/heldout/$1.xml" "tools/heldout/$1-64.exr" -D res=64; }
+run cornell-box scenes/cornell-box/scene.xml tests/refs/cornell-box-64.exr -D res=64
+run mitsuba-style scenes/mitsuba-style/scene.xml tests/refs/mitsuba-style-80x60.exr -D resx=80 -D resy=60
+run mesh-room scenes/mesh-room/scene.xml tests/refs/mesh-room-64.exr -D res=64
+run caustic scenes/caustic/scene.xml tests/refs/caustic-64.exr -D res=64
+run light-gap scenes/light-gap/scene.xml tests/refs/light-gap-64.exr -D res=64
+run light-gap-closeup scenes/light-gap/scene.xml tests/refs/light-gap-closeup-64.exr -D res=64 -D fov=12 \
     -D target=-1.1,0.4,-0.6
-run tools/heldout/closet-door.xml tools/heldout/closet-door-64.exr closet-door -D res=64
-run tools/heldout/mirror-glass-room.xml tools/heldout/mirror-glass-room-64.exr mirror-glass-room -D res=64
-run tools/heldout/reading-nook.xml tools/heldout/reading-nook-64.exr reading-nook -D res=64
-run tools/heldout/glass-counter.xml tools/heldout/glass-counter-64.exr glass-counter -D res=64
-run tools/heldout/cellar-hatch.xml tools/heldout/cellar-hatch-64.exr cellar-hatch -D res=64
+run attic-slit scenes/attic-slit/scene.xml tests/refs/attic-slit-64.exr -D res=64
+for room in closet-door mirror-glass-room reading-nook glass-counter cellar-hatch slit-cabinet uplight-room \
+            doorway glass-block-wall corner-room light-shaft loft-hatch light-bay ceiling-slot side-slot; do
+    held "$room"
+done
+python - "$OUT" <<'PY'
+import re, sys
+from pathlib import Path
+out = Path(sys.argv[1])
+lines = ["| room | " + " | ".join(["method", "RMSE, reference noise removed", "iterations"]) + " |", "|---|---|---|---|"]
+for md in sorted(out.glob("*/convergence.md")):
+    for row in md.read_text().splitlines():
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        if len(cells) > 4 and re.fullmatch(r"[a-z-]+", cells[0]) and cells[0] != "method":
+            lines.append(f"| {md.parent.name} | {cells[0]} | {cells[4]} | {cells[2]} |")
+(out / "summary.md").write_text("\n".join(lines) + "\n")
+print("\n".join(lines))
+PY

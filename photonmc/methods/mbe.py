@@ -42,11 +42,12 @@ odd ladders (light_frame per level and ladder parity), the camera side's from co
 iterations, work counted; K = N_L / n* (docs/mbe.md, "The defaults").
 
 vcm passes: a pass may instead be one of vcm's (independent light subpaths, one camera
-subpath per pixel, into this film) where it removes more error per unit of work: by both
+subpath per pixel, into a film of its own) where it removes more error per unit of work: by both
 kinds' measured variance per pass (--vcm-passes measured, the default since stop 42), or as
 the chain passes' measurements predict (auto); chain passes then keep a share of the work
 (methods/pass_choice.py; docs/mbe.md, "vcm passes where the chains do not pay", "Measured
-variances at the work they were measured at").
+variances at the work they were measured at"). The image combines the chain passes' film
+and the vcm passes' by their measured variances per pass (methods/film_weights.py).
 """
 import math
 
@@ -83,6 +84,7 @@ from ..kernels.vcm_mis import PathVertex
 from .base import MethodSettings
 from .chain_bias import ChainBias
 from .effort import EffortBalance, UniformWeight, uniform_weight_option
+from .film_weights import count_weights, film_weights, shrunk_log_ratio
 from .guided import LADDER_BURN_IN
 from .light_balance import LightPathBalance
 from .pass_choice import BatchMeansVariance, PassChoice
@@ -171,7 +173,7 @@ class Mbe(Vcm):
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
                "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True,
-               "balance": "mse", "uniform_weight": "auto", "vcm_passes": "measured"}
+               "balance": "mse", "uniform_weight": "auto", "vcm_passes": "measured", "film_weights": "variance"}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
@@ -251,15 +253,16 @@ class Mbe(Vcm):
         self.chain_fields = f
         if opts["vcm_passes"] not in ("auto", "measured", "off"):
             raise SettingsError(f"--vcm-passes must be 'auto', 'measured' or 'off', got '{opts['vcm_passes']}'")
-        # vcm passes (methods/pass_choice.py): a Vcm that renders into this film, its light
-        # subpaths --light-paths, its radius set by this method's index.
+        if opts["film_weights"] not in ("variance", "equal"):
+            raise SettingsError(f"--film-weights must be 'variance' or 'equal', got '{opts['film_weights']}'")
+        # vcm passes (methods/pass_choice.py): a Vcm with its own film (the image combines the
+        # two, methods/film_weights.py), its light subpaths --light-paths, its radius set by
+        # this method's index.
         self.independent = None
         if opts["vcm_passes"] in ("auto", "measured"):
             self.independent = Vcm(dscene, MethodSettings(settings.seed, settings.max_depth, {
                 "light_paths": self.n_light, "alpha": self.alpha, "radius": opts["radius"],
                 "radius_pixels": opts["radius_pixels"], "measure_passes": True}))
-            self.independent.film.release()
-            self.independent.film = self.film
         self._reset_chains()
 
     @staticmethod
@@ -293,7 +296,6 @@ class Mbe(Vcm):
         self.pool.release()
         self.chain_fields.release()
         if self.independent is not None:
-            self.independent.film = None        # this method's film, released below
             self.independent.release()
         super().release()
 
@@ -302,6 +304,7 @@ class Mbe(Vcm):
         self.pool.reset()
         if self.independent is not None:
             self.independent.counters.fill(0)
+            self.independent.film.reset()
         self._reset_chains()
 
     def _reset_chains(self):
@@ -882,6 +885,39 @@ class Mbe(Vcm):
         return used
 
     # -- results ----------------------------------------------------------------------
+    def _film_log_ratio(self) -> float:
+        """log(v_vcm / v_chain), the two kinds' measured variances per pass, shrunk toward 0 by
+        their errors (methods/film_weights.py); 0 under --film-weights equal."""
+        if self.options["film_weights"] != "variance":
+            return 0.0
+        return shrunk_log_ratio(self.chain_batches.pass_variance(), self.chain_batches.relative_error(),
+                                self.light_balance.pass_variance(), self.light_balance.pass_variance_relative_error())
+
+    def film_weights(self) -> tuple[float, float]:
+        """The weights of the chain passes' film and the vcm passes' in the image."""
+        if self.independent is None:
+            return 1.0, 0.0
+        return film_weights(self.film.film.samples_per_pixel, self.independent.film.film.samples_per_pixel,
+                            self._film_log_ratio())
+
+    def _films(self):
+        """(weight, film) of each film that has a weight in the image."""
+        films = (self.film, None if self.independent is None else self.independent.film)
+        return [(w, f) for w, f in zip(self.film_weights(), films) if w > 0.0]
+
+    def image(self):
+        return sum(w * f.mean() for w, f in self._films())
+
+    def standard_error(self):
+        return np.sqrt(sum((w * f.standard_error()) ** 2 for w, f in self._films()))
+
+    def _film_stats(self) -> dict:
+        n_c = self.film.film.samples_per_pixel
+        n_v = self.independent.film.film.samples_per_pixel if self.independent is not None else 0
+        return {"chain_passes": n_c, "vcm_passes": n_v, "chain_weight": self.film_weights()[0],
+                "chain_weight_by_count": count_weights(n_c, n_v)[0],
+                "log_vcm_over_chain_variance_shrunk": self._film_log_ratio(), "weights": self.options["film_weights"]}
+
     def progress_fields(self) -> str:
         t = self.totals
         acc = t[:, ACCEPTED] / np.maximum(t[:, MUTATIONS], 1)
@@ -942,5 +978,7 @@ class Mbe(Vcm):
             "memory_bytes": {"camera_vertices_and_grid": camera_bytes, "chains_and_level_frames": chain_bytes,
                              "vcm_passes_light_vertices": (self.independent.store.capacity * BYTES_PER_STORED_VERTEX
                                                            if self.independent is not None else 0)},
-            "nonfinite_samples_dropped": self.film.dropped(),
+            "films": self._film_stats(),
+            "nonfinite_samples_dropped": self.film.dropped() + (self.independent.film.dropped()
+                                                                if self.independent is not None else 0),
         }
