@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Equal-time comparison of mbe against vcm, visibility and pt (docs/mbe.md, docs/convergence.md):
 # every bundled scene, the close-up of the gap-lit room, and the held-out rooms (tools/heldout/)
-# that have a reference. ROOMS (space-separated names) runs only those; a summary table of
-# RMSE with the reference's noise removed goes to OUTDIR/summary.md.
+# that have a reference. ROOMS (space-separated names) runs only those; a summary table
+# (tools/converge_summary.py: each method against vcm) goes to OUTDIR/summary.md.
 #   [METHODS=mbe,vcm,visibility,pt] [ROOMS="light-bay closet-door"] bash tools/mbe_suite.sh [SECONDS] [OUTDIR] \
 #       [converge options, e.g. --seeds 0,1,2,3 --interleave]
 set -euo pipefail
@@ -30,16 +30,4 @@ for room in closet-door mirror-glass-room reading-nook glass-counter cellar-hatc
             doorway glass-block-wall corner-room light-shaft loft-hatch light-bay ceiling-slot side-slot; do
     held "$room"
 done
-python - "$OUT" <<'PY'
-import re, sys
-from pathlib import Path
-out = Path(sys.argv[1])
-lines = ["| room | " + " | ".join(["method", "RMSE, reference noise removed", "iterations"]) + " |", "|---|---|---|---|"]
-for md in sorted(out.glob("*/convergence.md")):
-    for row in md.read_text().splitlines():
-        cells = [c.strip() for c in row.strip("|").split("|")]
-        if len(cells) > 4 and re.fullmatch(r"[a-z-]+", cells[0]) and cells[0] != "method":
-            lines.append(f"| {md.parent.name} | {cells[0]} | {cells[4]} | {cells[2]} |")
-(out / "summary.md").write_text("\n".join(lines) + "\n")
-print("\n".join(lines))
-PY
+python "$(dirname "$0")/converge_summary.py" "$OUT" | tee "$OUT/summary.md"

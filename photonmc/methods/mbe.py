@@ -977,7 +977,10 @@ class Mbe(Vcm):
             "camera_vertex_store_grown": self.store_grown,
             "memory_bytes": {"camera_vertices_and_grid": camera_bytes, "chains_and_level_frames": chain_bytes,
                              "vcm_passes_light_vertices": (self.independent.store.capacity * BYTES_PER_STORED_VERTEX
-                                                           if self.independent is not None else 0)},
+                                                           if self.independent is not None else 0),
+                             "vcm_passes_film": (self.independent.film.fields.nbytes
+                                                 + self.independent.film.film.fields.nbytes
+                                                 if self.independent is not None else 0)},
             "films": self._film_stats(),
             "nonfinite_samples_dropped": self.film.dropped() + (self.independent.film.dropped()
                                                                 if self.independent is not None else 0),
