@@ -6,12 +6,12 @@ A chain pass and a vcm pass differ in variance by several times (in the held-out
 chain pass has about a third of a vcm pass's, at three times its time). One film that takes
 every pass as one sample weighs them alike, and where the pass choice mixes the kinds that
 costs variance: with equal time in each kind there, 1.25x the variance of vcm passes alone,
-although the kinds tie at equal time (arithmetic in docs/mbe.md, "Two films"). Weights set pass by pass from
-earlier passes' estimates lost where those estimates erred (a firefly raised the variance of
-the passes after it, so its own pass weighed more; docs/mbe.md, "Passes weighed by their
-variance"). Measured against one film, these weights tie within resolution (0.95-1.03x at
-15 s on eight rooms): the kinds seldom mix at those lengths. Here each kind keeps its own
-film, and the image is
+although the kinds tie at equal time (arithmetic in docs/mbe.md, "Two films"). Weights set
+pass by pass from earlier passes' estimates lost where those estimates erred (a firefly
+raised the variance of the passes after it, so its own pass weighed more; docs/mbe.md,
+"Passes weighed by their variance"). Measured against one film, the weights below tie within
+resolution (0.95-1.03x at 15 s on eight rooms, 1.02x at 60 s in the light bay): at those
+lengths the kinds seldom mix. Here each kind keeps its own film, and the image is
 
     w F_chain + (1 - w) F_vcm,   w = (n_c / v_c) / (n_c / v_c + n_v / v_v),
 
