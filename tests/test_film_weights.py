@@ -22,6 +22,8 @@ def test_a_variance_ratio_within_its_error_keeps_the_count_weights():
     assert shrunk_log_ratio(1.0, 0.5, 4.0, 0.5) == pytest.approx(math.log(4.0) - math.hypot(0.5, 0.5))
     assert shrunk_log_ratio(4.0, 0.5, 1.0, 0.5) == pytest.approx(-(math.log(4.0) - math.hypot(0.5, 0.5)))
     assert shrunk_log_ratio(1.0, 1.0, 2.0, 1.0) == 0.0
+    # an error that is not finite (a variance estimate overflowed) leaves the count weights
+    assert shrunk_log_ratio(1.0, 0.1, 4.0, math.inf) == 0.0 and shrunk_log_ratio(1.0, math.nan, 4.0, 0.1) == 0.0
     assert shrunk_log_ratio(1.0, 0.0, 4.0, 0.0) == pytest.approx(math.log(4.0))
     # inverse-variance weights: chain passes a quarter of the variance count four times
     w_c, w_v = film_weights(10, 40, math.log(4.0))

@@ -58,7 +58,9 @@ def shrunk_log_ratio(chain_variance: float | None, chain_error: float | None, vc
         return 0.0
     log_ratio = math.log(vcm_variance / chain_variance)
     margin = z * math.hypot(chain_error, vcm_error)
-    return math.copysign(max(abs(log_ratio) - margin, 0.0), log_ratio)
+    if not (margin < abs(log_ratio)):       # within its error, or an error that is not finite
+        return 0.0
+    return math.copysign(abs(log_ratio) - margin, log_ratio)
 
 
 def film_weights(n_chain: int, n_vcm: int, log_ratio: float) -> tuple[float, float]:
