@@ -173,7 +173,8 @@ class Mbe(Vcm):
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
                "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True,
-               "balance": "mse", "uniform_weight": "auto", "vcm_passes": "measured", "film_weights": "variance"}
+               "balance": "mse", "uniform_weight": "auto", "vcm_passes": "measured", "film_weights": "variance",
+               "pixel_samples": "independent"}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
@@ -262,7 +263,8 @@ class Mbe(Vcm):
         if opts["vcm_passes"] in ("auto", "measured"):
             self.independent = Vcm(dscene, MethodSettings(settings.seed, settings.max_depth, {
                 "light_paths": self.n_light, "alpha": self.alpha, "radius": opts["radius"],
-                "radius_pixels": opts["radius_pixels"], "measure_passes": True}))
+                "radius_pixels": opts["radius_pixels"], "measure_passes": True,
+                "pixel_samples": opts["pixel_samples"]}))
         self._reset_chains()
 
     @staticmethod
@@ -448,7 +450,7 @@ class Mbe(Vcm):
                     self.store, self.grid, eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2, n_subpaths,
                     vm_normalization, ratio, 1.0 / steps, *map(float, self.pool.theta_host),
                     *map(float, self.b_mis_host), *map(float, self.pre_scale_host), self.seed_u32, it,
-                    self.max_depth, k, self.radius, *self._index_serial(n_subpaths)))
+                    self.max_depth, k, self.radius, self.camera_paths_traced - k, *self._index_serial(n_subpaths)))
             if n <= self.store.capacity:
                 break
             self.film.clear_frame()        # counter-based random numbers: the redo is the same pass
@@ -664,7 +666,7 @@ class Mbe(Vcm):
                      kappa: ti.f32, r2: ti.f32, n_subpaths: ti.i32, vm_normalization: ti.f32, pairing: ti.f32,
                      inv_steps: ti.f32, theta0: ti.f32, theta1: ti.f32, b_mis0: ti.f32, b_mis1: ti.f32,
                      pre_scale0: ti.f32, pre_scale1: ti.f32, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32,
-                     per_pixel: ti.i32, radius: ti.f32, serial_paths: ti.template(),
+                     per_pixel: ti.i32, radius: ti.f32, sample_base: ti.u32, serial_paths: ti.template(),
                      serial_grid: ti.template()) -> ti.i32:
         """The iteration's camera side in one launch (each launch, and each field write from
         Python, costs host time; a scalar argument costs less than a vector one): its MIS
@@ -679,7 +681,7 @@ class Mbe(Vcm):
         self.pool.write_theta(ti.Vector([theta0, theta1]))
         self.b_mis[0], self.b_mis[1] = b_mis0, b_mis1
         self.pre_scale[0], self.pre_scale[1] = pre_scale0, pre_scale1
-        self.camera_subpaths(store, grid, seed, iteration, max_depth, vm_normalization, per_pixel)
+        self.camera_subpaths(store, grid, seed, iteration, max_depth, vm_normalization, per_pixel, sample_base)
         return self.index_vertices(store, grid, n_subpaths, radius, serial_paths, serial_grid)
 
     # -- camera side: vcm's camera walk, storing vertices instead of using light ones ----

@@ -12,7 +12,7 @@ surfaces and vertices.
 import taichi as ti
 
 from ..film import Film
-from ..kernels import rng
+from ..kernels import pixel_samples, rng
 from ..kernels.camera_walk import CONTINUE, THROUGHPUT_ROULETTE, camera_walk
 from ..kernels.device_scene import UNBOUNDED_DEPTH, DeviceScene
 from ..kernels.direct import next_event
@@ -29,8 +29,11 @@ class PathTracer(Method):
     work_unit = "samples"
     independent_iterations = True
 
+    OPTIONS = {"pixel_samples": "independent"}
+
     def __init__(self, dscene: DeviceScene, settings: MethodSettings):
         super().__init__(dscene, settings)
+        self.sobol_pixels = pixel_samples.uses_sobol(self.options)
         self.film = Film(dscene.width, dscene.height)
         depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
         self.max_depth = UNBOUNDED_DEPTH if depth == -1 else depth
@@ -58,8 +61,11 @@ class PathTracer(Method):
     @ti.kernel
     def _trace_pixels(self, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32):
         for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
-            state = rng.seed(seed, ti.u32(y * self.dscene.width + x), iteration)
-            o, d = self.dscene.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
+            pixel = ti.u32(y * self.dscene.width + x)
+            state = rng.seed(seed, pixel, iteration)
+            # one sample per pixel per iteration: the iteration is the pixel's sample index
+            u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, pixel, iteration, state)
+            o, d = self.dscene.camera_ray(x, y, u1, u2)
             acc = Radiance(L=vec3(0.0))
             camera_walk(self.dscene, o, d, state, max_depth, self, acc)
             self.film.add(y, x, acc.L)

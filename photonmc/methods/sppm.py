@@ -30,7 +30,7 @@ import numpy as np
 import taichi as ti
 
 from ..errors import SettingsError
-from ..kernels import rng
+from ..kernels import pixel_samples, rng
 from ..kernels.camera_walk import STOP, THROUGHPUT_ROULETTE, camera_walk
 from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.direct import next_event
@@ -69,7 +69,8 @@ class Sppm(Method):
     work_unit = "photons"
     default_iterations = 100
     OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False,
-               "camera_paths": None, "radius_rule": "progressive", "balance": "mse"}
+               "camera_paths": None, "radius_rule": "progressive", "balance": "mse",
+               "pixel_samples": "independent"}
     RADIUS_RULES = ("progressive", "balanced")
     default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
     # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the
@@ -120,6 +121,8 @@ class Sppm(Method):
         # relmse: the effort balance weighs each pixel's error by 1 / (m^2 + eps), as converge's
         # relMSE does (docs/guiding.md, "The closet's error, and two levers measured")
         self.relative_balance = opts["balance"] == "relmse"
+        self.sobol_pixels = pixel_samples.uses_sobol(opts)
+        self.camera_samples = 0       # camera paths per pixel traced so far: the next one's sample index
         self.alpha_factor = 1.0       # its factor on alpha for this pass
         self.fast_passes = 0          # and the passes it shrank faster
         depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
@@ -211,6 +214,7 @@ class Sppm(Method):
         self.alpha_factor = 1.0       # balanced radius rule: this pass's factor on alpha
         self.fast_passes = 0          # and the passes it shrank faster
         self.photons_emitted = 0
+        self.camera_samples = 0
         if self.camera_paths_auto:
             self.camera_paths = 1
         if self.balanced:
@@ -235,7 +239,8 @@ class Sppm(Method):
         # MPs past this pass's are cleared up to the last pass's, which may have used more.
         in_use = max(k, self.camera_paths_last) * self.n_pixels
         self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle,
-                          k, in_use)
+                          k, in_use, self.camera_samples)
+        self.camera_samples += k
         self._init_radii(k)
         self.grid.build(self.mp_p, self.mp_radius, self.mp_valid, in_use)
         self.camera_paths_last = k
@@ -266,7 +271,7 @@ class Sppm(Method):
 
     @ti.kernel
     def _camera_pass(self, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32, r_abs: ti.f32, r_per_dist: ti.f32,
-                     camera_paths: ti.i32, in_use: ti.i32):
+                     camera_paths: ti.i32, in_use: ti.i32, sample_base: ti.u32):
         sc = self.dscene
         for j in range(in_use):
             self.mp_valid[j] = 0
@@ -274,7 +279,9 @@ class Sppm(Method):
             if j < camera_paths * self.n_pixels:
                 i = j % self.n_pixels
                 state = rng.seed(seed, ti.u32(j), iteration * ti.u32(2))
-                o, d = sc.camera_ray(i % sc.width, i // sc.width, rng.next_float(state), rng.next_float(state))
+                u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, ti.u32(i),
+                                                    sample_base + ti.u32(j // self.n_pixels), state)
+                o, d = sc.camera_ray(i % sc.width, i // sc.width, u1, u2)
                 acc = CameraPath(direct=vec3(0.0), pixel=j, r_abs=r_abs, r_per_dist=r_per_dist, rays=1)
                 camera_walk(sc, o, d, state, max_depth, self, acc)
                 direct = acc.direct

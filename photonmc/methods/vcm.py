@@ -24,7 +24,7 @@ import taichi as ti
 from ..errors import SettingsError
 from ..runtime import serial_loop
 from ..film import SplatFilm
-from ..kernels import rng, vcm_mis
+from ..kernels import pixel_samples, rng, vcm_mis
 from ..kernels.camera_walk import CONTINUE, MATERIAL_ROULETTE, camera_walk
 from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.fields import FieldGroup
@@ -60,7 +60,7 @@ class Vcm(Method):
     independent_iterations = True     # the radius is r_1 i^((alpha-1)/2) of the index i alone (fixed --light-paths)
     balances_light_paths = True       # --light-paths auto (the default); mbe's --light-paths are chain steps
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
-               "techniques": "vcm", "light_vertex_capacity": None, "measure_passes": False}
+               "techniques": "vcm", "light_vertex_capacity": None, "measure_passes": False, "pixel_samples": "independent"}
     # The light vertices and their grid live for one iteration (state.py does not save them).
     TRANSIENT = ("store", "grid")
     # What trace_photon hands this visitor: every non-delta vertex, with the MIS partial sums.
@@ -72,6 +72,7 @@ class Vcm(Method):
         opts = self.options
         w, h = dscene.width, dscene.height
         self.n_pixels = w * h
+        self.sobol_pixels = pixel_samples.uses_sobol(opts)
         # --light-paths auto (vcm's default): as many light subpaths per pass as the pass is worth,
         # measured (methods/light_balance.py); a number fixes them.
         light_paths = opts["light_paths"]
@@ -217,8 +218,10 @@ class Vcm(Method):
             store, grid = self.store, (self.grid if self.grid is not None else self.fields)
         if self.store is not None:
             self.vertices_last = n
+        # The camera subpath's place in its pixel's sequence is the radius's index: vcm's
+        # iteration, mbe's camera subpaths per pixel so far (kernels/pixel_samples.py).
         measured = self._camera_pass(store, grid, self.seed_u32, it, self.max_depth,
-                                     1.0 / (PI * self.radius ** 2 * n_light), int(keep))
+                                     1.0 / (PI * self.radius ** 2 * n_light), int(keep), radius_index)
         if keep:
             self.film.count_flushed()
         return measured
@@ -303,14 +306,15 @@ class Vcm(Method):
     # -- camera side ---------------------------------------------------------------------
     @ti.kernel
     def _camera_pass(self, store: ti.template(), grid: ti.template(), seed: ti.u32, iteration: ti.u32,
-                     max_depth: ti.i32, vm_normalization: ti.f32, keep: ti.i32) -> ti.types.vector(5, ti.f64):
+                     max_depth: ti.i32, vm_normalization: ti.f32, keep: ti.i32,
+                     sample_base: ti.u32) -> ti.types.vector(5, ti.f64):
         """One camera subpath per pixel, then the frame joins the film (or, keep = 0, is only
         measured and cleared), in one launch. With the
         light-path balance, returns what it measures of the pass (zeros without): the sum over
         pixels of (this pass's estimate - the last one's)^2 in luminance, summed per row, then
         over rows in a fixed order (a seed gives one image whatever the threads); light
         segments, camera vertices, connections and merge candidates (the counters, then reset)."""
-        self.camera_subpaths(store, grid, seed, iteration, max_depth, vm_normalization, 1)
+        self.camera_subpaths(store, grid, seed, iteration, max_depth, vm_normalization, 1, sample_base)
         w = ti.static(self.dscene.width)
         ti.loop_config(serialize=ti.static(serial_loop(self.n_pixels)))
         for y in range(self.dscene.height):
@@ -339,18 +343,21 @@ class Vcm(Method):
 
     @ti.func
     def camera_subpaths(self, store: ti.template(), grid: ti.template(), seed, iteration, max_depth,
-                        vm_normalization, per_pixel):
+                        vm_normalization, per_pixel, sample_base):
         """per_pixel camera subpaths per pixel (vcm: 1; mbe: --camera-paths), at a kernel's
         top level. Subpath k * pixels + pixel draws its own random numbers (k = 0: the
-        pixel's, as with one) and adds 1/per_pixel of its estimate to the pixel; `acc.subpath`
-        names the subpath."""
+        pixel's, as with one), starts at sample sample_base + k of its pixel's sequence
+        (kernels/pixel_samples.py) and adds 1/per_pixel of its estimate to the pixel;
+        `acc.subpath` names the subpath."""
         sc = self.dscene
         inv_per_pixel = 1.0 / ti.cast(per_pixel, ti.f32)
         for k, y, x in ti.ndrange(per_pixel, sc.height, sc.width):
             pixel = y * sc.width + x
             subpath = k * ti.static(self.n_pixels) + pixel
             state = rng.seed(seed, ti.u32(subpath), iteration * ti.u32(2))
-            o, d = sc.camera_ray(x, y, rng.next_float(state), rng.next_float(state))
+            u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, ti.u32(pixel),
+                                                ti.cast(sample_base, ti.u32) + ti.u32(k), state)
+            o, d = sc.camera_ray(x, y, u1, u2)
             acc = CameraSubpath(L=vec3(0.0), merged=ti.Vector([0, 0, 0], ti.i64),
                                 m=vcm_mis.camera_start(sc.camera_pdf_w(d), self.mis_constants()), subpath=subpath,
                                 max_depth=max_depth, vm_normalization=vm_normalization,
