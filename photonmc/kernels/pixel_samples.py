@@ -17,8 +17,9 @@ inflate every estimate that reads a pass's variance from its difference to the p
 (vcm's light-path balance, the effort balance) by up to 2x where an edge crosses the pixel.
 Consecutive samples now come from independent replicates, so those estimates read the
 variance of independent passes, as before, and each replicate alone keeps the n^-3/4 rate
-(the image's error where an edge decides it is about 1.2x that of one sequence).
-Measured in docs/convergence.md, "Stratified pixel positions".
+(two half-length nets: in theory about 1.2x one sequence's error where an edge decides; on
+the Cornell box no cost was measurable). Measured in docs/convergence.md, "Stratified pixel
+positions".
 
 The sample index n must count the pixel's camera samples over the render: the methods pass
 the number traced before this pass plus the sample's place in the pass, so that resumed and
