@@ -54,6 +54,28 @@ def test_resume_equals_straight_bit_for_bit(method, tmp_path):
     assert not np.array_equal(half.image, straight.image)
 
 
+@pytest.mark.parametrize("method", ["pt", "sppm", "mbe"])
+def test_resume_continues_the_pixels_sobol_sequences(method, tmp_path):
+    """--pixel-samples sobol: the camera samples' index into each pixel's sequence (pt's
+    iteration, sppm's camera_samples, mbe's camera subpaths traced) is part of the state, so a
+    resumed render continues the sequences: the image of 2N straight, bit for bit, and not
+    that of the same render with independent positions."""
+    def sobol_job(sampler="sobol"):
+        return Job(scene=CORNELL, params=SMALL, method=method, seed=3,
+                   options={**OPTIONS[method], "pixel_samples": sampler})
+    straight = rendered(sobol_job(), 6)
+    [half] = state.load(state.save(tmp_path / "half.state", [rendered(sobol_job(), 3)]))
+    p, _ = resume(half)
+    try:
+        for _ in range(3):
+            p.method.iterate()
+        resumed = p.method.image()
+    finally:
+        p.release()
+    assert np.array_equal(resumed, straight.image), np.abs(resumed - straight.image).max()
+    assert not np.array_equal(rendered(sobol_job("independent"), 6).image, straight.image)
+
+
 @pytest.mark.parametrize("method,options,chosen,half", [
     ("sppm", {"photons": "auto"}, "photons_per_iteration", 6),
     ("sppm", {"radius_rule": "balanced"}, "fast_passes", 24),
