@@ -51,7 +51,10 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           # Held out from mbe's chain-bias rule (stop 44).
           "side-slot": ("../tools/heldout/side-slot.xml", "../../tools/heldout/side-slot-64.exr", {"res": "64"}),
           # Held out from mbe's two films (stop 45).
-          "slab-gap": ("../tools/heldout/slab-gap.xml", "../../tools/heldout/slab-gap-64.exr", {"res": "64"})}
+          "slab-gap": ("../tools/heldout/slab-gap.xml", "../../tools/heldout/slab-gap-64.exr", {"res": "64"}),
+          # Held out from the stratified pixel positions (stop 46).
+          "strip-lights": ("../tools/heldout/strip-lights.xml", "../../tools/heldout/strip-lights-64.exr",
+                           {"res": "64"})}
 
 
 def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):
