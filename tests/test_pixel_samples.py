@@ -16,17 +16,17 @@ from .conftest import SCENES
 
 
 @ti.kernel
-def _points(seed: ti.u32, first_index: ti.u32, out: ti.types.ndarray(ndim=3)):
-    """out[p, i] = sample first_index + i of pixel p."""
+def _points(seed: ti.u32, first_index: ti.u32, stream: ti.u32, out: ti.types.ndarray(ndim=3)):
+    """out[p, i] = sample first_index + i of pixel p's stream `stream`."""
     for p, i in ti.ndrange(out.shape[0], out.shape[1]):
-        u1, u2 = pixel_samples.pixel_position(seed, ti.u32(p), first_index + ti.u32(i))
+        u1, u2 = pixel_samples.pixel_position(seed, ti.u32(p), first_index + ti.u32(i), stream)
         out[p, i, 0] = u1
         out[p, i, 1] = u2
 
 
-def points(pixels: int, n: int, seed: int = 3, first_index: int = 0) -> np.ndarray:
+def points(pixels: int, n: int, seed: int = 3, first_index: int = 0, stream: int = 0) -> np.ndarray:
     out = np.zeros((pixels, n, 2), np.float32)
-    _points(seed, first_index, out)
+    _points(seed, first_index, stream, out)
     return out
 
 
@@ -74,6 +74,23 @@ def test_consecutive_samples_are_uncorrelated():
         for axis in (0, 1):
             r = np.corrcoef(pts[:, k, axis], pts[:, k + 1, axis])[0, 1]
             assert abs(r) < 4 / np.sqrt(8192), (k, axis, r)
+
+
+def test_the_streams_of_one_pass_are_independent_sequences():
+    """A pass's K samples per pixel take the same index in K streams (sppm's and mbe's slots,
+    mbe's vcm passes): each stream is a sequence of nets of its own, and the samples of one
+    index in two streams are uncorrelated over 8,192 pixels, as K independent camera paths
+    are (the effort balance's V_c / K)."""
+    a = points(8192, 4, stream=0)
+    b = points(8192, 4, stream=1)
+    vcm = points(8192, 4, stream=pixel_samples.VCM_PASS_STREAM)
+    for other in (b, vcm):
+        assert not np.array_equal(a, other)
+        for i in range(4):
+            for axis in (0, 1):
+                r = np.corrcoef(a[:, i, axis], other[:, i, axis])[0, 1]
+                assert abs(r) < 4 / np.sqrt(8192), (i, axis, r)
+    assert is_net(points(1, 512, stream=1)[0, 0::2]) and is_net(points(1, 512, stream=1)[0, 1::2])
 
 
 def test_an_edge_across_the_pixel_converges_faster_and_without_bias():
@@ -124,11 +141,11 @@ def lamp_edges():
 @pytest.mark.parametrize("method,options", [("pt", {}), ("sppm", {}), ("vcm", {}),
                                             ("mbe", {"camera_paths": 2, "vcm_passes": "off"})])
 def test_every_methods_camera_samples_walk_their_pixels_sequence(lamp_edges, method, options):
-    """64 samples per pixel of the lamp's edges: from the pixel's sequence the error is well
+    """64 samples per pixel of the lamp's edges: from the pixel's sequences the error is well
     below independent positions' (pt's, the same estimator of what the camera sees directly).
     A method whose sample index did not advance, or restarted each pass, would repeat one
-    point and stay far above it. (mbe: chain passes only, K = 2, so that all 64 samples are
-    traced; its vcm passes trace one per pixel.)"""
+    point and stay far above it. (mbe: chain passes only, K = 2, two streams of 32 samples,
+    so that all 64 samples are traced; its vcm passes trace one per pixel.)"""
     reference, edge = lamp_edges
     independent = _edge_error("pt", "independent", 64, reference, edge)
     passes = 64 // options.get("camera_paths", 1)

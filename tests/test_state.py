@@ -56,8 +56,8 @@ def test_resume_equals_straight_bit_for_bit(method, tmp_path):
 
 @pytest.mark.parametrize("method", ["pt", "sppm", "mbe"])
 def test_resume_continues_the_pixels_sobol_sequences(method, tmp_path):
-    """--pixel-samples sobol: the camera samples' index into each pixel's sequence (pt's
-    iteration, sppm's camera_samples, mbe's camera subpaths traced) is part of the state, so a
+    """--pixel-samples sobol: the camera samples' index into each pixel's sequences (pt's and
+    sppm's iteration, mbe's passes of each kind) is part of the state, so a
     resumed render continues the sequences: the image of 2N straight, bit for bit, and not
     that of the same render with independent positions."""
     def sobol_job(sampler="sobol"):

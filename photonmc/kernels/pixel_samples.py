@@ -21,9 +21,16 @@ variance of independent passes, as before, and each replicate alone keeps the n^
 the Cornell box no cost was measurable). Measured in docs/convergence.md, "Stratified pixel
 positions".
 
-The sample index n must count the pixel's camera samples over the render: the methods pass
-the number traced before this pass plus the sample's place in the pass, so that resumed and
-sliced renders continue one sequence.
+Streams: a pass of K camera samples per pixel takes slot k's from stream k, its own pair of
+replicates, and the sample index is the number of passes traced before it (the passes of its
+kind, for mbe, whose chain passes and vcm passes fill films of their own). So the K samples of
+one pass are independent of each other, as the effort balance's V_c / K and every
+within-pass estimate assume, and each slot's samples are stratified over the passes. One
+sequence over all of a pixel's samples stratifies more where K is large, but its K samples
+within a pass would have less variance than V_c / K, and the balance reads that as a smaller
+camera side (tests/test_effort.py, camera variance per camera path); two kinds of pass
+sharing it would each see a gappy part of it. Resumed and sliced renders continue the same
+sequences: the pass counts are saved with the state.
 """
 import taichi as ti
 
@@ -31,7 +38,9 @@ from ..errors import SettingsError
 from . import rng
 
 PIXEL_SAMPLERS = ("sobol", "independent")
-_SALT = 0x5EED0000        # + 2 x replicate + axis: distinct scrambles per replicate and axis
+_SALT = 0x5EED0000        # + 4 x stream + 2 x replicate + axis: a scramble per stream, replicate and axis
+# mbe's vcm passes: streams of their own, apart from its chain passes' slots 0..K-1
+VCM_PASS_STREAM = 1 << 16
 
 
 @ti.func
@@ -84,11 +93,11 @@ def to_unit(x: ti.u32) -> ti.f32:
 
 
 @ti.func
-def pixel_position(seed: ti.u32, pixel: ti.u32, index: ti.u32):
-    """(u1, u2) in [0, 1)^2: sample `index` of pixel `pixel`, point index // 2 of its
-    replicate index % 2. The first dimension of Sobol's sequence is the point's index with its
+def pixel_position(seed: ti.u32, pixel: ti.u32, index: ti.u32, stream: ti.u32):
+    """(u1, u2) in [0, 1)^2: sample `index` of pixel `pixel`'s stream `stream`, point
+    index // 2 of its replicate index % 2. The first dimension of Sobol's sequence is the point's index with its
     bits reversed, so its scramble skips the reversal twice."""
-    salt = ti.u32(_SALT) + ti.u32(2) * (index & ti.u32(1))
+    salt = ti.u32(_SALT) + ti.u32(4) * stream + ti.u32(2) * (index & ti.u32(1))
     point = index >> 1
     ux = reverse_bits(_lower_bits_permutation(point, rng.seed(seed, pixel, salt)))
     uy = owen_scramble(sobol_dim1(point), rng.seed(seed, pixel, salt + ti.u32(1)))
@@ -96,12 +105,14 @@ def pixel_position(seed: ti.u32, pixel: ti.u32, index: ti.u32):
 
 
 @ti.func
-def pixel_sample(sobol: ti.template(), seed: ti.u32, pixel: ti.u32, index: ti.u32, state: ti.template()):
-    """The camera sample's (u1, u2) in its pixel: from the pixel's sequence (sobol), or the
-    next two numbers of the path's own stream (--pixel-samples independent)."""
+def pixel_sample(sobol: ti.template(), seed: ti.u32, pixel: ti.u32, index: ti.u32, stream: ti.u32,
+                 state: ti.template()):
+    """The camera sample's (u1, u2) in its pixel: sample `index` of the pixel's stream
+    `stream` (sobol), or the next two numbers of the path's own random numbers
+    (--pixel-samples independent)."""
     u1, u2 = 0.0, 0.0
     if ti.static(sobol):
-        u1, u2 = pixel_position(seed, pixel, index)
+        u1, u2 = pixel_position(seed, pixel, index, stream)
     else:
         u1 = rng.next_float(state)
         u2 = rng.next_float(state)

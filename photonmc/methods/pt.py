@@ -64,7 +64,7 @@ class PathTracer(Method):
             pixel = ti.u32(y * self.dscene.width + x)
             state = rng.seed(seed, pixel, iteration)
             # one sample per pixel per iteration: the iteration is the pixel's sample index
-            u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, pixel, iteration, state)
+            u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, pixel, iteration, ti.u32(0), state)
             o, d = self.dscene.camera_ray(x, y, u1, u2)
             acc = Radiance(L=vec3(0.0))
             camera_walk(self.dscene, o, d, state, max_depth, self, acc)

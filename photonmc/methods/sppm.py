@@ -122,7 +122,6 @@ class Sppm(Method):
         # relMSE does (docs/guiding.md, "The closet's error, and two levers measured")
         self.relative_balance = opts["balance"] == "relmse"
         self.sobol_pixels = pixel_samples.uses_sobol(opts)
-        self.camera_samples = 0       # camera paths per pixel traced so far: the next one's sample index
         self.alpha_factor = 1.0       # its factor on alpha for this pass
         self.fast_passes = 0          # and the passes it shrank faster
         depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
@@ -214,7 +213,6 @@ class Sppm(Method):
         self.alpha_factor = 1.0       # balanced radius rule: this pass's factor on alpha
         self.fast_passes = 0          # and the passes it shrank faster
         self.photons_emitted = 0
-        self.camera_samples = 0
         if self.camera_paths_auto:
             self.camera_paths = 1
         if self.balanced:
@@ -239,8 +237,7 @@ class Sppm(Method):
         # MPs past this pass's are cleared up to the last pass's, which may have used more.
         in_use = max(k, self.camera_paths_last) * self.n_pixels
         self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle,
-                          k, in_use, self.camera_samples)
-        self.camera_samples += k
+                          k, in_use)
         self._init_radii(k)
         self.grid.build(self.mp_p, self.mp_radius, self.mp_valid, in_use)
         self.camera_paths_last = k
@@ -271,7 +268,7 @@ class Sppm(Method):
 
     @ti.kernel
     def _camera_pass(self, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32, r_abs: ti.f32, r_per_dist: ti.f32,
-                     camera_paths: ti.i32, in_use: ti.i32, sample_base: ti.u32):
+                     camera_paths: ti.i32, in_use: ti.i32):
         sc = self.dscene
         for j in range(in_use):
             self.mp_valid[j] = 0
@@ -279,8 +276,9 @@ class Sppm(Method):
             if j < camera_paths * self.n_pixels:
                 i = j % self.n_pixels
                 state = rng.seed(seed, ti.u32(j), iteration * ti.u32(2))
-                u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, ti.u32(i),
-                                                    sample_base + ti.u32(j // self.n_pixels), state)
+                # slot j // pixels of K: its own stream, indexed by the pass (kernels/pixel_samples.py)
+                u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, ti.u32(i), iteration,
+                                                    ti.u32(j // self.n_pixels), state)
                 o, d = sc.camera_ray(i % sc.width, i // sc.width, u1, u2)
                 acc = CameraPath(direct=vec3(0.0), pixel=j, r_abs=r_abs, r_per_dist=r_per_dist, rays=1)
                 camera_walk(sc, o, d, state, max_depth, self, acc)
