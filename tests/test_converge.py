@@ -73,10 +73,14 @@ def test_converge_rejects_a_reference_of_the_wrong_size(tmp_path, capsys):
 
 def test_converge_over_seeds_reports_means_and_the_spread(tmp_path):
     from photonmc import load_scene
-    p = prepare(load_scene(CORNELL, {"res": 16}), method="pt", seed=11)
-    ref = run(p, Budget(iterations=256), quiet=True).image
-    p.release()
-    noise_mse = 1e-4                  # as tools/make_reference.py writes it: the reference's own MSE
+    halves = []
+    for seed in (11, 12):
+        p = prepare(load_scene(CORNELL, {"res": 16}), method="pt", seed=seed)
+        halves.append(run(p, Budget(iterations=256), quiet=True).image)
+        p.release()
+    ref = (halves[0] + halves[1]) / 2
+    # the reference's own MSE, as tools/make_reference.py writes it: from its two halves
+    noise_mse = float(np.mean((halves[0] - halves[1]) ** 2) / 4)
     write_image(tmp_path / "ref.exr", ref, {"noise_mse": noise_mse})
     out = tmp_path / "conv"
     rc = main(["converge", CORNELL, "-D", "res=16", "--methods", "pt", "--reference", str(tmp_path / "ref.exr"),
@@ -93,11 +97,11 @@ def test_converge_over_seeds_reports_means_and_the_spread(tmp_path):
     assert f"| {np.mean(rmses):.4g} +- " in table
     denoised = np.mean([np.sqrt(e * e - noise_mse) for e in rmses])
     assert "RMSE, reference noise removed" in table and f"| {denoised:.4g} +- " in table
-    # the split into noise and systematic error is the seeds' images' (pt at 4 of the
-    # reference's 256 iterations: nearly all of its error is noise)
+    # the split into noise and systematic error is the seeds' images' (what it means is
+    # tests/test_metrics.py's: with three seeds of pt's heavy-tailed 4-sample images the
+    # systematic part of an unbiased render reads 0 to 0.95x the noise, seed triples 3-26)
     noise, systematic = metrics.noise_and_systematic_error(images, read_image(tmp_path / "ref.exr"), noise_mse)
     assert f"| {noise:.4g}, {systematic:.4g} |" in table
-    assert systematic < 0.2 * noise
 
 
 def test_converge_refuses_repeated_seeds(tmp_path, capsys):

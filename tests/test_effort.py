@@ -150,16 +150,20 @@ def test_split_estimates_agree_across_photon_counts():
 
 @pytest.mark.parametrize("pixel_samples", ["independent", "sobol"])
 def test_camera_variance_is_per_camera_path_whatever_their_number(pixel_samples):
-    """With K camera paths per pixel the camera side's variance per iteration is V_c / K
-    (independent paths), and the balance's estimate, which divides that out, agrees at K = 1
-    and K = 4 on the Cornell box (camera error dominant). Also with stratified pixel
-    positions, whose K samples of a pass come from K streams (kernels/pixel_samples.py): from
-    one sequence they were stratified within the pass, and V_c at K = 4 read 0.67x K = 1's."""
+    """With K independent camera paths per pixel the camera side's variance per iteration is
+    V_c / K, and the balance's estimate, which divides that out, agrees at K = 1 and K = 4 on
+    the Cornell box (camera error dominant). With stratified pixel positions a pass's K
+    samples are K consecutive points of a scrambled Sobol' sequence (kernels/pixel_samples.py),
+    so the pass varies less than V_c / K and the estimate per path at K = 4 is below K = 1's
+    (measured 0.67x): the balance reads the camera side at the K it runs."""
     cornell = {"scene": "cornell-box", "res": "16"}
     one = _estimates(dict(cornell), 1024, 300, 5, pixel_samples=pixel_samples)
     four = _estimates(dict(cornell), 1024, 300, 6, camera_paths=4, pixel_samples=pixel_samples)
     print(f"cornell V_c, V_p with 1 camera path per pixel {one}, with 4 {four}")
-    assert four[0] == pytest.approx(one[0], rel=0.3)
+    if pixel_samples == "independent":
+        assert four[0] == pytest.approx(one[0], rel=0.3)
+    else:
+        assert four[0] < 0.85 * one[0]
 
 
 def test_balanced_sppm_gives_photons_to_a_photon_starved_view():

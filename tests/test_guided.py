@@ -184,18 +184,30 @@ def _needle_scene(write_scene):
 @pytest.mark.parametrize("method", GUIDED)
 def test_almost_nothing_visible_still_renders(write_scene, method):
     """Passes lengthen until the chains find the visible set (doubling while nothing is found,
-    then ~10/b steps per chain); no division by zero, no stuck chains, no NaN."""
+    then ~10/b steps per chain); no division by zero, no stuck chains, no NaN. The passes run
+    until a uniform proposal has been visible, then two more: how many passes the finding
+    takes is luck (spatial-tf at seeds 1-6: seeds 1 and 3 within 6 passes, the others not),
+    and the pass that finds it may have seen no mutation succeed yet."""
     scene = _needle_scene(write_scene)
-    # visibility's passes start at 64 photons and double while nothing is found (the first
-    # visible path comes near the 10th pass); spatial-tf's ladder passes start at 4096 steps
-    # and reach ~1.2 M by the 6th.
-    iterations = {"visibility": 12, "spatial-tf": 6}[method]
-    r = render(scene, method, iterations, seed=1, chains=4)
-    s = r.stats
+    p = prepare(scene, method=method, seed=1, options={"chains": 4})
+    try:
+        found = None
+        for i in range(16):
+            p.method.iterate()
+            if p.method.stats()["uniform_visible_fraction"] > 0:
+                found = i
+                break
+        assert found is not None, "16 passes found no visible photon"
+        for _ in range(2):
+            p.method.iterate()
+        image, s = p.method.image(), p.method.stats()
+    finally:
+        p.release()
     visible = s["uniform_visible_fraction"]
-    print(f"{method}: visible {visible:.2e}, photons per pass {s['photons_last_iteration']}, levels {s['levels']}")
+    print(f"{method}: visible {visible:.2e} (found in pass {found + 1}), photons per pass "
+          f"{s['photons_last_iteration']}, levels {s['levels']}")
     assert 0 < visible < 1e-4
-    assert np.isfinite(r.image).all() and r.image.mean() > 0
+    assert np.isfinite(image).all() and image.mean() > 0
     for level in s["levels"]:
         assert level["mutations"] > 0 and 0 < level["acceptance"] < 1
     assert s["nonfinite_samples_dropped"] == 0

@@ -17,9 +17,11 @@ from .conftest import SCENES
 
 @ti.kernel
 def _points(seed: ti.u32, first_index: ti.u32, stream: ti.u32, out: ti.types.ndarray(ndim=3)):
-    """out[p, i] = sample first_index + i of pixel p's stream `stream`."""
+    """out[p, i] = sample first_index + i of pixel p's stream `stream`, where sample n is
+    point n // 2 of replicate n % 2 (a pass of one sample per pixel, pt's and vcm's)."""
     for p, i in ti.ndrange(out.shape[0], out.shape[1]):
-        u1, u2 = pixel_samples.pixel_position(seed, ti.u32(p), first_index + ti.u32(i), stream)
+        n = first_index + ti.u32(i)
+        u1, u2 = pixel_samples.pixel_position(seed, ti.u32(p), n >> ti.u32(1), n & ti.u32(1), stream)
         out[p, i, 0] = u1
         out[p, i, 1] = u2
 
@@ -76,21 +78,26 @@ def test_consecutive_samples_are_uncorrelated():
             assert abs(r) < 4 / np.sqrt(8192), (k, axis, r)
 
 
-def test_the_streams_of_one_pass_are_independent_sequences():
-    """A pass's K samples per pixel take the same index in K streams (sppm's and mbe's slots,
-    mbe's vcm passes): each stream is a sequence of nets of its own, and the samples of one
-    index in two streams are uncorrelated over 8,192 pixels, as K independent camera paths
-    are (the effort balance's V_c / K)."""
+def test_passes_take_the_next_points_of_alternate_replicates():
+    """PassSamples: a pass of K samples per pixel takes the next K points of replicate
+    (passes so far) % 2, so each replicate's points over the render are its sequence in order
+    (a net in every aligned block) whatever K each pass had; K = 1 is pt's and vcm's
+    iteration_points. mbe's vcm passes have a stream of their own, uncorrelated with the chain
+    passes' at the same point (8,192 pixels)."""
+    passes = pixel_samples.PassSamples()
+    taken = [(k, passes.take(k)) for k in (4, 4, 2, 2, 8, 8, 1, 1, 1, 1)]
+    assert [first for _, (first, _) in taken] == [0, 0, 4, 4, 6, 6, 14, 14, 15, 15]
+    assert [replicate for _, (_, replicate) in taken] == [0, 1] * 5
+    assert (passes.points_even, passes.points_odd) == (16, 16)
+    ones = pixel_samples.PassSamples()
+    assert [ones.take(1) for _ in range(5)] == [pixel_samples.iteration_points(i) for i in range(5)]
     a = points(8192, 4, stream=0)
-    b = points(8192, 4, stream=1)
     vcm = points(8192, 4, stream=pixel_samples.VCM_PASS_STREAM)
-    for other in (b, vcm):
-        assert not np.array_equal(a, other)
-        for i in range(4):
-            for axis in (0, 1):
-                r = np.corrcoef(a[:, i, axis], other[:, i, axis])[0, 1]
-                assert abs(r) < 4 / np.sqrt(8192), (i, axis, r)
-    assert is_net(points(1, 512, stream=1)[0, 0::2]) and is_net(points(1, 512, stream=1)[0, 1::2])
+    assert not np.array_equal(a, vcm)
+    for i in range(4):
+        for axis in (0, 1):
+            r = np.corrcoef(a[:, i, axis], vcm[:, i, axis])[0, 1]
+            assert abs(r) < 4 / np.sqrt(8192), (i, axis, r)
 
 
 def test_an_edge_across_the_pixel_converges_faster_and_without_bias():
@@ -144,8 +151,8 @@ def test_every_methods_camera_samples_walk_their_pixels_sequence(lamp_edges, met
     """64 samples per pixel of the lamp's edges: from the pixel's sequences the error is well
     below independent positions' (pt's, the same estimator of what the camera sees directly).
     A method whose sample index did not advance, or restarted each pass, would repeat one
-    point and stay far above it. (mbe: chain passes only, K = 2, two streams of 32 samples,
-    so that all 64 samples are traced; its vcm passes trace one per pixel.)"""
+    point and stay far above it. (mbe: chain passes only, K = 2, so that all 64 samples are
+    traced; its vcm passes trace one per pixel.)"""
     reference, edge = lamp_edges
     independent = _edge_error("pt", "independent", 64, reference, edge)
     passes = 64 // options.get("camera_paths", 1)

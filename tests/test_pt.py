@@ -30,9 +30,9 @@ def furnace_expectation(depth):
     return RADIANCE * sum(ALBEDO ** k for k in range(depth))
 
 
-def render_method(scene, iterations, seed=0, max_depth=None, method="pt"):
+def render_method(scene, iterations, seed=0, max_depth=None, method="pt", **options):
     """Render; returns (per-pixel standard error of luminance, RunResult) and frees the device memory."""
-    p = prepare(scene, method=method, seed=seed, max_depth=max_depth)
+    p = prepare(scene, method=method, seed=seed, max_depth=max_depth, options=options)
     r = run(p, Budget(iterations=iterations), quiet=True)
     se = p.method.standard_error()
     p.release()
@@ -104,14 +104,17 @@ def test_pt_matches_mitsuba(name, ref_file, params):
     Per-pixel agreement is judged against our own noise measured empirically: two renders
     A, B with different seeds give MSE(A,B)/2 = our per-pixel variance, heavy tails included
     (per-pixel sample variances are unreliable where caustics make rare fireflies). Without
-    bias MSE(A, ref) = var(A) + var(ref), with var(ref) ~ var(A) * n / n_ref."""
+    bias MSE(A, ref) = var(A) + var(ref), with var(ref) ~ var(A) * n / n_ref. That holds for
+    the same sampler at both sample counts: Mitsuba's references use independent pixel
+    positions, so ours do here (with stratified positions var(A) falls faster than 1 / n,
+    and the model would understate the reference's noise: ratio 2.1 on mitsuba-style)."""
     ref_path = REFS / ref_file
     ref = read_image(ref_path)
     ref_spp = int(read_metadata(ref_path)["spp"])
     scene = load_scene(SCENES / name / "scene.xml", params)
     n = 512
-    a = render_method(scene, n, seed=1)[1].image
-    b = render_method(scene, n, seed=2)[1].image
+    a = render_method(scene, n, seed=1, pixel_samples="independent")[1].image
+    b = render_method(scene, n, seed=2, pixel_samples="independent")[1].image
     assert a.shape == ref.shape
     for img in (a, b):                        # mean luminance within 1 % (the issue's criterion)
         assert abs(mean_luminance(img) / mean_luminance(ref) - 1) < 0.01

@@ -248,7 +248,8 @@ def test_error_falls_on_the_light_gap(techniques):
     within 4 standard errors (from the per-pixel spread over iterations) plus 0.5 % for the
     reference. vcm's merging keeps a boundary bias along the slit's grazing-lit faces that
     shrinks only with the radius (sppm: -9 % in that band at 400 iterations,
-    docs/convergence.md); away from the band vcm's mean must be within 1 %."""
+    docs/convergence.md); away from the band vcm's mean must be within 1 % plus 3 standard
+    errors of its own noise there (about 0.3 %: one render, as for light tracing)."""
     ref = luminance(read_image(REFS / "light-gap-64.exr"))
     scene = load_scene(SCENES / "light-gap" / "scene.xml", {"res": 64})
     p = prepare(scene, method="vcm", seed=1, options={"techniques": techniques})
@@ -269,12 +270,14 @@ def test_error_falls_on_the_light_gap(techniques):
     band = slit_band(ref)
     outside = img[:, ~band].mean() / ref[:, ~band].mean() - 1
     sigma = float(np.sqrt(np.sum(se ** 2)) / se.size / mean)
+    se_out = se[:, ~band]
+    sigma_outside = float(np.sqrt(np.sum(se_out ** 2)) / se_out.size / img[:, ~band].mean())
     print(f"{techniques} light-gap RMSE {np.round(errors, 5).tolist()} at {checkpoints}: slope {slope:.3f}, "
           f"mean {100 * bias:+.2f} % (standard error {100 * sigma:.2f} %), outside the slit band "
-          f"{100 * outside:+.2f} %")
+          f"{100 * outside:+.2f} % (standard error {100 * sigma_outside:.2f} %)")
     assert errors[0] > errors[1] > errors[2]
     assert slope < -0.3
     if techniques == "lt":
         assert abs(bias) < 4 * sigma + 0.005
     else:
-        assert abs(outside) < 0.01
+        assert abs(outside) < 0.01 + 3 * sigma_outside

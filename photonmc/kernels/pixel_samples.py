@@ -10,27 +10,26 @@ the camera sees a lamp's edge or a slit goes away faster. A scrambled point is u
 pixel, so every estimator stays unbiased; the rest of a path keeps its independent random
 numbers (kernels/rng.py).
 
-Two replicates, even and odd samples: sample n is point n // 2 of replicate n % 2, and the
-replicates are scrambled independently. Consecutive points of one sequence are strongly
-anti-correlated (points 2k and 2k + 1 lie in opposite halves of the pixel), which would
-inflate every estimate that reads a pass's variance from its difference to the pass before
-(vcm's light-path balance, the effort balance) by up to 2x where an edge crosses the pixel.
-Consecutive samples now come from independent replicates, so those estimates read the
-variance of independent passes, as before, and each replicate alone keeps the n^-3/4 rate
-(two half-length nets: in theory about 1.2x one sequence's error where an edge decides; on
-the Cornell box no cost was measurable). Measured in docs/convergence.md, "Stratified pixel
-positions".
+Two replicates, even and odd passes: a pixel has two sequences, scrambled independently, and
+a pass takes the next points of one of them in turn (PassSamples). Points 2k and 2k + 1 of
+one sequence always lie in opposite halves of the pixel; had consecutive passes taken
+consecutive points, every estimate that reads a pass's variance from its difference to the
+pass before (vcm's light-path balance, the effort balance) would be inflated by up to 2x
+where an edge crosses the pixel. Consecutive passes come from independent replicates, so
+those estimates read the variance of independent passes, and each replicate alone keeps the
+n^-3/4 rate (two half-length nets: in theory about 1.2x one sequence's error where an edge
+decides; on the Cornell box no cost was measurable).
 
-Streams: a pass of K camera samples per pixel takes slot k's from stream k, its own pair of
-replicates, and the sample index is the number of passes traced before it (the passes of its
-kind, for mbe, whose chain passes and vcm passes fill films of their own). So the K samples of
-one pass are independent of each other, as the effort balance's V_c / K and every
-within-pass estimate assume, and each slot's samples are stratified over the passes. One
-sequence over all of a pixel's samples stratifies more where K is large, but its K samples
-within a pass would have less variance than V_c / K, and the balance reads that as a smaller
-camera side (tests/test_effort.py, camera variance per camera path); two kinds of pass
-sharing it would each see a gappy part of it. Resumed and sliced renders continue the same
-sequences: the pass counts are saved with the state.
+A pass of K samples per pixel takes K consecutive points of its replicate, so its K samples
+are stratified too: a pass's camera variance is below V_c / K, which the effort balance, which
+measures V_c at the K it runs, reads as a smaller camera side per path (docs/effort.md).
+(K streams indexed by the pass, each slot its own sequence, keep V_c / K exact but stratify a
+pixel's samples only slot by slot: mbe's chain passes at K = 13 lost 12 % against vcm on the
+Cornell box that way.) mbe's chain passes and vcm passes fill films of their own, and each
+kind has its own pair of sequences (VCM_PASS_STREAM), so that neither film is a gappy part
+of one sequence. Resumed renders continue the sequences: the counts are saved with the
+state; pt and vcm derive theirs from the iteration, so that sliced renders share them.
+Measured in docs/convergence.md, "Stratified pixel positions".
 """
 import taichi as ti
 
@@ -39,8 +38,7 @@ from . import rng
 
 PIXEL_SAMPLERS = ("sobol", "independent")
 _SALT = 0x5EED0000        # + 4 x stream + 2 x replicate + axis: a scramble per stream, replicate and axis
-# mbe's vcm passes: streams of their own, apart from its chain passes' slots 0..K-1
-VCM_PASS_STREAM = 1 << 16
+VCM_PASS_STREAM = 1       # mbe's vcm passes: sequences of their own, apart from its chain passes'
 
 
 @ti.func
@@ -93,30 +91,57 @@ def to_unit(x: ti.u32) -> ti.f32:
 
 
 @ti.func
-def pixel_position(seed: ti.u32, pixel: ti.u32, index: ti.u32, stream: ti.u32):
-    """(u1, u2) in [0, 1)^2: sample `index` of pixel `pixel`'s stream `stream`, point
-    index // 2 of its replicate index % 2. The first dimension of Sobol's sequence is the point's index with its
+def pixel_position(seed: ti.u32, pixel: ti.u32, point: ti.u32, replicate: ti.u32, stream: ti.u32):
+    """(u1, u2) in [0, 1)^2: point `point` of pixel `pixel`'s replicate `replicate` (0 or 1)
+    in stream `stream`. The first dimension of Sobol's sequence is the point's index with its
     bits reversed, so its scramble skips the reversal twice."""
-    salt = ti.u32(_SALT) + ti.u32(4) * stream + ti.u32(2) * (index & ti.u32(1))
-    point = index >> 1
+    salt = ti.u32(_SALT) + ti.u32(4) * stream + ti.u32(2) * replicate
     ux = reverse_bits(_lower_bits_permutation(point, rng.seed(seed, pixel, salt)))
     uy = owen_scramble(sobol_dim1(point), rng.seed(seed, pixel, salt + ti.u32(1)))
     return to_unit(ux), to_unit(uy)
 
 
 @ti.func
-def pixel_sample(sobol: ti.template(), seed: ti.u32, pixel: ti.u32, index: ti.u32, stream: ti.u32,
-                 state: ti.template()):
-    """The camera sample's (u1, u2) in its pixel: sample `index` of the pixel's stream
-    `stream` (sobol), or the next two numbers of the path's own random numbers
-    (--pixel-samples independent)."""
+def pixel_sample(sobol: ti.template(), seed: ti.u32, pixel: ti.u32, point: ti.u32, replicate: ti.u32,
+                 stream: ti.u32, state: ti.template()):
+    """The camera sample's (u1, u2) in its pixel: point `point` of the pixel's replicate
+    `replicate` in stream `stream` (sobol), or the next two numbers of the path's own random
+    numbers (--pixel-samples independent)."""
     u1, u2 = 0.0, 0.0
     if ti.static(sobol):
-        u1, u2 = pixel_position(seed, pixel, index, stream)
+        u1, u2 = pixel_position(seed, pixel, point, replicate, stream)
     else:
         u1 = rng.next_float(state)
         u2 = rng.next_float(state)
     return u1, u2
+
+
+def iteration_points(iteration: int) -> tuple[int, int]:
+    """(first point, replicate) of a pass of one sample per pixel that is the render's
+    iteration `iteration` (pt, vcm): what PassSamples would give, derived from the iteration
+    alone, so that interleaved slices of a render walk its sequences."""
+    return iteration // 2, iteration % 2
+
+
+class PassSamples:
+    """Where each pass's K samples per pixel lie in the pixels' two replicates: the next K
+    points of replicate (passes so far) % 2. The counts are part of a render's state."""
+
+    def __init__(self):
+        self.passes = 0
+        self.points_even = 0          # points taken from replicate 0 so far, and from 1
+        self.points_odd = 0
+
+    def take(self, k: int) -> tuple[int, int]:
+        """(first point, replicate) of the next pass of k samples per pixel."""
+        replicate = self.passes % 2
+        first = self.points_odd if replicate else self.points_even
+        if replicate:
+            self.points_odd += k
+        else:
+            self.points_even += k
+        self.passes += 1
+        return first, replicate
 
 
 def uses_sobol(options: dict) -> bool:

@@ -343,10 +343,10 @@ class Mbe(Vcm):
         self.steps_last = self.n_light
         self.steps_sum = 0
         self.camera_paths_traced = 0        # camera subpaths per pixel so far: the radius's index
-        # Passes of each kind so far, exploring ones included: their camera subpaths' sample
-        # index in the pixels' sequences, one set per kind (kernels/pixel_samples.py)
-        self.chain_passes_traced = 0
-        self.vcm_passes_traced = 0
+        # Each kind's passes (exploring ones included) in the pixels' sequences, one pair of
+        # sequences per kind (kernels/pixel_samples.py)
+        self.chain_pixel_passes = pixel_samples.PassSamples()
+        self.vcm_pixel_passes = pixel_samples.PassSamples()
         self.b_last = np.zeros(self.n_levels)
         self.b_sum = np.zeros(self.n_levels)
         self.passes_with_b = 0
@@ -406,8 +406,7 @@ class Mbe(Vcm):
         v.r1 = self.r1
         n_light = self.light_balance.next_light_paths()
         spread, segments, vertices, connections, merges = v.vcm_pass(
-            it, self.camera_paths_traced, n_light, keep, self.vcm_passes_traced, pixel_samples.VCM_PASS_STREAM)
-        self.vcm_passes_traced += 1
+            it, self.camera_paths_traced, n_light, keep, self.vcm_pixel_passes.take(1), pixel_samples.VCM_PASS_STREAM)
         work = LightPathBalance.work(self.n_pixels, vertices, connections, segments, v.vertices_last, merges)
         self.light_balance.observe(n_light, spread, self.n_pixels, work)
         if not keep:
@@ -430,6 +429,7 @@ class Mbe(Vcm):
         self.camera_paths_traced += k
         steps = self._steps_this_pass()
         n_subpaths = k * self.n_pixels
+        pixel_points = self.chain_pixel_passes.take(k)      # (first point, replicate): kernels/pixel_samples.py
         # Sample counts relative to the connections': a light subpath connects to one of the
         # K x pixels camera subpaths, so a pixel gets N_L / pixels connections whatever K;
         # the camera-only techniques (emitter hits, NEE) make K times as many independent
@@ -456,7 +456,7 @@ class Mbe(Vcm):
                     self.store, self.grid, eta, 1.0 / eta, float(self.n_pixels), kappa, self.radius ** 2, n_subpaths,
                     vm_normalization, ratio, 1.0 / steps, *map(float, self.pool.theta_host),
                     *map(float, self.b_mis_host), *map(float, self.pre_scale_host), self.seed_u32, it,
-                    self.max_depth, k, self.radius, self.chain_passes_traced, *self._index_serial(n_subpaths)))
+                    self.max_depth, k, self.radius, *pixel_points, *self._index_serial(n_subpaths)))
             if n <= self.store.capacity:
                 break
             self.film.clear_frame()        # counter-based random numbers: the redo is the same pass
@@ -464,7 +464,6 @@ class Mbe(Vcm):
             self.store_grown += 1
         self.vertices_last = n
         self.vertices_sum += n
-        self.chain_passes_traced += 1
         tallies = self.pool.run_pass(self.chain_model, self.seed_u32, it, steps, extra=(self.light_counters,))
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
@@ -673,7 +672,8 @@ class Mbe(Vcm):
                      kappa: ti.f32, r2: ti.f32, n_subpaths: ti.i32, vm_normalization: ti.f32, pairing: ti.f32,
                      inv_steps: ti.f32, theta0: ti.f32, theta1: ti.f32, b_mis0: ti.f32, b_mis1: ti.f32,
                      pre_scale0: ti.f32, pre_scale1: ti.f32, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32,
-                     per_pixel: ti.i32, radius: ti.f32, sample_index: ti.u32, serial_paths: ti.template(),
+                     per_pixel: ti.i32, radius: ti.f32, first_point: ti.u32, replicate: ti.u32,
+                     serial_paths: ti.template(),
                      serial_grid: ti.template()) -> ti.i32:
         """The iteration's camera side in one launch (each launch, and each field write from
         Python, costs host time; a scalar argument costs less than a vector one): its MIS
@@ -688,8 +688,8 @@ class Mbe(Vcm):
         self.pool.write_theta(ti.Vector([theta0, theta1]))
         self.b_mis[0], self.b_mis[1] = b_mis0, b_mis1
         self.pre_scale[0], self.pre_scale[1] = pre_scale0, pre_scale1
-        self.camera_subpaths(store, grid, seed, iteration, max_depth, vm_normalization, per_pixel, sample_index,
-                             ti.u32(0))
+        self.camera_subpaths(store, grid, seed, iteration, max_depth, vm_normalization, per_pixel, first_point,
+                             replicate, ti.u32(0))
         return self.index_vertices(store, grid, n_subpaths, radius, serial_paths, serial_grid)
 
     # -- camera side: vcm's camera walk, storing vertices instead of using light ones ----

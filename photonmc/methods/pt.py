@@ -63,8 +63,10 @@ class PathTracer(Method):
         for y, x in ti.ndrange(self.dscene.height, self.dscene.width):
             pixel = ti.u32(y * self.dscene.width + x)
             state = rng.seed(seed, pixel, iteration)
-            # one sample per pixel per iteration: the iteration is the pixel's sample index
-            u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, pixel, iteration, ti.u32(0), state)
+            # one sample per pixel per iteration: replicate iteration % 2, its point iteration // 2
+            # (pixel_samples.iteration_points)
+            u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, pixel, iteration >> ti.u32(1),
+                                                iteration & ti.u32(1), ti.u32(0), state)
             o, d = self.dscene.camera_ray(x, y, u1, u2)
             acc = Radiance(L=vec3(0.0))
             camera_walk(self.dscene, o, d, state, max_depth, self, acc)

@@ -131,6 +131,7 @@ class Sppm(Method):
         self.pixel_angle = 2.0 * dscene.tan_y / h      # pixel footprint per unit distance
         self.photons_emitted = 0
         self.photon_paths_used = 0
+        self.pixel_passes = pixel_samples.PassSamples()     # the camera passes' place in the pixels' sequences
 
         self.n_acc = self.n_levels + (1 if self.uniform_accumulator else 0)
         f = FieldGroup(f"sppm-{self.n_levels}-levels")
@@ -213,6 +214,7 @@ class Sppm(Method):
         self.alpha_factor = 1.0       # balanced radius rule: this pass's factor on alpha
         self.fast_passes = 0          # and the passes it shrank faster
         self.photons_emitted = 0
+        self.pixel_passes = pixel_samples.PassSamples()
         if self.camera_paths_auto:
             self.camera_paths = 1
         if self.balanced:
@@ -237,7 +239,7 @@ class Sppm(Method):
         # MPs past this pass's are cleared up to the last pass's, which may have used more.
         in_use = max(k, self.camera_paths_last) * self.n_pixels
         self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle,
-                          k, in_use)
+                          k, in_use, *self.pixel_passes.take(k))
         self._init_radii(k)
         self.grid.build(self.mp_p, self.mp_radius, self.mp_valid, in_use)
         self.camera_paths_last = k
@@ -268,7 +270,7 @@ class Sppm(Method):
 
     @ti.kernel
     def _camera_pass(self, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32, r_abs: ti.f32, r_per_dist: ti.f32,
-                     camera_paths: ti.i32, in_use: ti.i32):
+                     camera_paths: ti.i32, in_use: ti.i32, first_point: ti.u32, replicate: ti.u32):
         sc = self.dscene
         for j in range(in_use):
             self.mp_valid[j] = 0
@@ -276,9 +278,10 @@ class Sppm(Method):
             if j < camera_paths * self.n_pixels:
                 i = j % self.n_pixels
                 state = rng.seed(seed, ti.u32(j), iteration * ti.u32(2))
-                # slot j // pixels of K: its own stream, indexed by the pass (kernels/pixel_samples.py)
-                u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, ti.u32(i), iteration,
-                                                    ti.u32(j // self.n_pixels), state)
+                # slot j // pixels of K: the pass's next K points of its replicate (kernels/pixel_samples.py)
+                u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, ti.u32(i),
+                                                    first_point + ti.u32(j // self.n_pixels), replicate, ti.u32(0),
+                                                    state)
                 o, d = sc.camera_ray(i % sc.width, i // sc.width, u1, u2)
                 acc = CameraPath(direct=vec3(0.0), pixel=j, r_abs=r_abs, r_per_dist=r_per_dist, rays=1)
                 camera_walk(sc, o, d, state, max_depth, self, acc)

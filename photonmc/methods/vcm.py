@@ -186,14 +186,15 @@ class Vcm(Method):
         self.work_done += n + self.n_pixels
 
     def vcm_pass(self, it: int, radius_index: int, n_light: int | None = None, keep: bool = True,
-                 sample_index: int | None = None, stream: int = 0):
+                 pixel_points: tuple[int, int] | None = None, stream: int = 0):
         """One iteration: random numbers drawn for index `it`, merging radius r_(radius_index)
         (the same index for vcm; mbe's vcm passes index it by its camera subpaths), n_light
         light subpaths (at most --light-paths, which sizes the store; mbe's vcm passes choose
         theirs, methods/pass_choice.py). keep=False measures the pass without adding it to the
         film (mbe's passes that only measure a vcm pass's variance, methods/pass_choice.py).
-        The camera subpaths start at sample `sample_index` (default: radius_index) of their
-        pixels' stream `stream` (kernels/pixel_samples.py; mbe's vcm passes have their own)."""
+        The camera subpaths start at pixel_points = (point, replicate) of their pixels'
+        sequences in stream `stream` (kernels/pixel_samples.py; default: radius_index's as an
+        iteration; mbe's vcm passes have their own)."""
         n_light = self.n_light if n_light is None else int(n_light)
         if not 1 <= n_light <= self.n_light:
             raise ValueError(f"a vcm pass traces 1 to {self.n_light} light subpaths, not {n_light}")
@@ -221,11 +222,11 @@ class Vcm(Method):
             store, grid = self.store, (self.grid if self.grid is not None else self.fields)
         if self.store is not None:
             self.vertices_last = n
-        # The camera subpath's place in its pixel's sequence: vcm's iteration, the vcm passes
-        # so far in mbe (kernels/pixel_samples.py).
+        # The camera subpath's place in its pixel's sequences: from vcm's iteration, from the
+        # vcm passes so far in mbe (kernels/pixel_samples.py).
+        point, replicate = pixel_samples.iteration_points(radius_index) if pixel_points is None else pixel_points
         measured = self._camera_pass(store, grid, self.seed_u32, it, self.max_depth,
-                                     1.0 / (PI * self.radius ** 2 * n_light), int(keep),
-                                     radius_index if sample_index is None else sample_index, stream)
+                                     1.0 / (PI * self.radius ** 2 * n_light), int(keep), point, replicate, stream)
         if keep:
             self.film.count_flushed()
         return measured
@@ -311,14 +312,15 @@ class Vcm(Method):
     @ti.kernel
     def _camera_pass(self, store: ti.template(), grid: ti.template(), seed: ti.u32, iteration: ti.u32,
                      max_depth: ti.i32, vm_normalization: ti.f32, keep: ti.i32,
-                     sample_index: ti.u32, stream: ti.u32) -> ti.types.vector(5, ti.f64):
+                     first_point: ti.u32, replicate: ti.u32, stream: ti.u32) -> ti.types.vector(5, ti.f64):
         """One camera subpath per pixel, then the frame joins the film (or, keep = 0, is only
         measured and cleared), in one launch. With the
         light-path balance, returns what it measures of the pass (zeros without): the sum over
         pixels of (this pass's estimate - the last one's)^2 in luminance, summed per row, then
         over rows in a fixed order (a seed gives one image whatever the threads); light
         segments, camera vertices, connections and merge candidates (the counters, then reset)."""
-        self.camera_subpaths(store, grid, seed, iteration, max_depth, vm_normalization, 1, sample_index, stream)
+        self.camera_subpaths(store, grid, seed, iteration, max_depth, vm_normalization, 1, first_point, replicate,
+                             stream)
         w = ti.static(self.dscene.width)
         ti.loop_config(serialize=ti.static(serial_loop(self.n_pixels)))
         for y in range(self.dscene.height):
@@ -347,11 +349,12 @@ class Vcm(Method):
 
     @ti.func
     def camera_subpaths(self, store: ti.template(), grid: ti.template(), seed, iteration, max_depth,
-                        vm_normalization, per_pixel, sample_index, stream):
+                        vm_normalization, per_pixel, first_point, replicate, stream):
         """per_pixel camera subpaths per pixel (vcm: 1; mbe: --camera-paths), at a kernel's
         top level. Subpath k * pixels + pixel draws its own random numbers (k = 0: the
-        pixel's, as with one), starts at sample sample_index of its pixel's stream
-        stream + k (kernels/pixel_samples.py) and adds 1/per_pixel of its estimate to the pixel;
+        pixel's, as with one), starts at point first_point + k of its pixel's replicate
+        `replicate` in stream `stream` (kernels/pixel_samples.py) and adds 1/per_pixel of its
+        estimate to the pixel;
         `acc.subpath` names the subpath."""
         sc = self.dscene
         inv_per_pixel = 1.0 / ti.cast(per_pixel, ti.f32)
@@ -359,8 +362,9 @@ class Vcm(Method):
             pixel = y * sc.width + x
             subpath = k * ti.static(self.n_pixels) + pixel
             state = rng.seed(seed, ti.u32(subpath), iteration * ti.u32(2))
-            u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, ti.u32(pixel), ti.cast(sample_index, ti.u32),
-                                                ti.cast(stream, ti.u32) + ti.u32(k), state)
+            u1, u2 = pixel_samples.pixel_sample(self.sobol_pixels, seed, ti.u32(pixel),
+                                                ti.cast(first_point, ti.u32) + ti.u32(k), ti.cast(replicate, ti.u32),
+                                                ti.cast(stream, ti.u32), state)
             o, d = sc.camera_ray(x, y, u1, u2)
             acc = CameraSubpath(L=vec3(0.0), merged=ti.Vector([0, 0, 0], ti.i64),
                                 m=vcm_mis.camera_start(sc.camera_pdf_w(d), self.mis_constants()), subpath=subpath,
