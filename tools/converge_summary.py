@@ -54,7 +54,10 @@ def main():
         for method, (rmse, iterations, removed) in table.items():
             ratio = paired = ""
             if method != ref and ref in table:
-                ratio = f"{float(rmse.split()[0]) / float(table[ref][0].split()[0]):.2f}x" + ("" if removed else " (raw)")
+                base = float(table[ref][0].split()[0])
+                # a base below the reference's own noise reads 0 once that is removed
+                ratio = (f"{float(rmse.split()[0]) / base:.2f}x" + ("" if removed else " (raw)") if base > 0
+                         else "(vcm below the reference's noise)".replace("vcm", ref))
                 seeds = sorted(s for m, s in last if m == method and (ref, s) in last)
                 r = np.array([last[(method, s)] / last[(ref, s)] for s in seeds])
                 if len(r) > 1:
