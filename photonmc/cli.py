@@ -73,9 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--threads", type=int)
     c.add_argument("--max-depth", type=int)
     c.add_argument("--pixel-samples", choices=["sobol", "independent"],
-                   help="where in its pixel each camera path starts: independent random positions (default), or sobol: "
-                        "the pixel's Owen-scrambled Sobol' sequences over the render (edges and slits seen by the camera "
-                        "converge faster; not yet the default, docs/convergence.md, 'Stratified pixel positions')")
+                   help="where in its pixel each camera path starts: sobol (default), the pixel's Owen-scrambled Sobol' "
+                        "sequences over the render (edges and slits seen by the camera converge faster), or independent "
+                        "random positions (docs/convergence.md, 'Stratified pixel positions')")
     c.add_argument("--photons", type=_photons, help="photon paths per iteration, or auto")
     c.add_argument("--camera-paths", type=_camera_paths, help="camera paths per pixel per pass, or auto")
     c.add_argument("--alpha", type=float)
@@ -101,9 +101,9 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
     r.add_argument("--threads", type=int, help="CPU threads (default: all cores)")
     r.add_argument("--max-depth", type=int, help="override the scene's max_depth (Mitsuba meaning)")
     r.add_argument("--pixel-samples", choices=["sobol", "independent"],
-                   help="where in its pixel each camera path starts: independent random positions (default), or sobol: "
-                        "the pixel's Owen-scrambled Sobol' sequences over the render (edges and slits seen by the camera "
-                        "converge faster; not yet the default, docs/convergence.md, 'Stratified pixel positions')")
+                   help="where in its pixel each camera path starts: sobol (default), the pixel's Owen-scrambled Sobol' "
+                        "sequences over the render (edges and slits seen by the camera converge faster), or independent "
+                        "random positions (docs/convergence.md, 'Stratified pixel positions')")
     pm = r.add_argument_group("photon mapping (sppm, visibility, spatial-tf)")
     pm.add_argument("--photons", type=_photons, help="photon paths per iteration (default: one per pixel); "
                     "auto (sppm): balanced against the camera pass from the error and work of each, "

@@ -584,9 +584,13 @@ def test_chain_passes_kept_where_light_subpaths_rarely_contribute():
     iterations the prediction rests on three pairs of passes at K = 1 whose camera variance
     is heavy-tailed, so one seed can land on either side (until stop 46 this test used seed 1
     alone, and seeds 2-4 failed it); the mean over four seeds ranks the rooms and puts each
-    on its side of the break-even."""
+    on its side of the break-even. With independent pixel positions: the prediction's camera
+    variance at K = 1 is that of independent samples. With stratified ones (the default) a
+    chain pass's K samples per pixel vary less than V_c / K, which the prediction does not
+    model, and it no longer parts the rooms at 24 passes (closet 1.03-1.22, mesh-room
+    1.06-1.36, seeds 1-4); what decides under them is measured, docs/mbe.md."""
     def predicted(scene, seed):
-        p = prepare(scene, method="mbe", seed=seed, options={"vcm_passes": "auto"})
+        p = prepare(scene, method="mbe", seed=seed, options={"vcm_passes": "auto", "pixel_samples": "independent"})
         for _ in range(24):
             p.method.iterate()
         stats = p.method.pass_choice.stats()
@@ -602,10 +606,10 @@ def test_chain_passes_kept_where_light_subpaths_rarely_contribute():
     assert sum(n for _, n in closet) < sum(n for _, n in mesh)
 
 
-def _after_iterations(name, res, iterations, read):
+def _after_iterations(name, res, iterations, read, seed=1):
     """read(method) after `iterations` chain passes (mbe's defaults without vcm passes) on
-    bundled scene `name`, seed 1."""
-    p = prepare(load_scene(SCENES / name / "scene.xml", {"res": res}), method="mbe", seed=1,
+    bundled scene `name`."""
+    p = prepare(load_scene(SCENES / name / "scene.xml", {"res": res}), method="mbe", seed=seed,
                 options={"vcm_passes": "off"})
     try:
         for _ in range(iterations):
@@ -619,28 +623,34 @@ def test_uniform_weight_follows_where_light_subpaths_contribute():
     """beta, the uniform proposals' share of the light side, is chosen from the measured
     variances: high where most light subpaths contribute (mesh-room, b_V 0.65: the chains'
     correlated records are worth less than the independent proposals they start from;
-    measured 0.80-0.85 over seeds 1-3), low where few do (the attic room, b_V 0.05-0.15:
-    measured 0.20-0.26), at 32x32 after 60 iterations. The large-step probability follows
-    beta upward and stays at --large-step (0.3) below it."""
-    chosen = {name: _after_iterations(name, 32, 60, lambda m: (m.beta.value, m.pool.large_step))
-              for name in ("mesh-room", "attic-slit")}
-    print("beta, large-step probability after 60 iterations", chosen)
-    beta, large_step = chosen["mesh-room"]
-    assert beta > 0.6 and large_step == pytest.approx(beta)
-    beta, large_step = chosen["attic-slit"]
-    assert beta < 0.4 and large_step == pytest.approx(0.3)
+    measured 0.81-0.84 over seeds 1-3), low where few do (the attic room, b_V 0.05-0.15:
+    measured 0.15-0.26 over seeds 2-4), at 32x32 after 60 iterations: the median over seeds
+    1-3, since one seed can stray (the attic's seed 1 read 0.55). The large-step probability
+    follows beta upward and stays at --large-step (0.3) below it."""
+    def median_over_seeds(name):
+        chosen = [_after_iterations(name, 32, 60, lambda m: (m.beta.value, m.pool.large_step), seed=seed)
+                  for seed in (1, 2, 3)]
+        print(name, "beta, large-step probability after 60 iterations", chosen)
+        for beta, large_step in chosen:
+            assert large_step == pytest.approx(beta if beta > 0.3 else 0.3)
+        return float(np.median([beta for beta, _ in chosen]))
+    assert median_over_seeds("mesh-room") > 0.6
+    assert median_over_seeds("attic-slit") < 0.4
 
 
 def _effort_estimates(scene, iterations, seed, **options):
     """(V_c, V_p) of mbe's effort balance after `iterations` at a fixed radius (alpha 1)."""
     return shares_after(prepare(scene, method="mbe", seed=seed, options={"alpha": 1.0, "vcm_passes": "off",
-                                                                         **options}), iterations)
+                                                                         "pixel_samples": "independent", **options}),
+                        iterations)
 
 
 def test_effort_estimates_agree_across_pass_lengths_and_camera_subpaths():
     """The balance behind --camera-paths auto (methods/effort.py) measures mbe's camera-side
     variance V_c (consecutive iterations) per camera subpath and its light-side variance V_p
-    (even against odd ladders) per chain step. At a fixed radius, Cornell box 16x16:
+    (even against odd ladders) per chain step. At a fixed radius, Cornell box 16x16, with
+    independent pixel positions (with stratified ones a pass's K samples are a net, and V_c
+    per subpath at K = 4 reads 0.47x K = 1's, as tests/test_effort.py checks for sppm):
     - V_c does not depend on the pass length or on the camera subpaths per pixel (256 and
       2048 chain steps per pass, one and four subpaths; measured 0.72, 0.72, 0.68);
     - V_p does not depend on the pass length beyond the chains' correlation (measured 0.90

@@ -146,9 +146,8 @@ class PassSamples:
 
 def uses_sobol(options: dict) -> bool:
     """--pixel-samples, checked: whether the camera samples' positions come from the pixel's
-    sequence. Not yet the default: the effort balance's model V_c / K and the estimators that
-    read a pass's variance assume independent camera samples (docs/convergence.md,
-    "Stratified pixel positions")."""
+    sequences (the default since stop 47; docs/convergence.md, "Stratified pixel
+    positions")."""
     value = options["pixel_samples"]
     if value not in PIXEL_SAMPLERS:
         raise SettingsError(f"--pixel-samples must be one of {', '.join(PIXEL_SAMPLERS)}, got '{value}'")

@@ -174,7 +174,7 @@ class Mbe(Vcm):
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
                "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True,
                "balance": "mse", "uniform_weight": "auto", "vcm_passes": "measured", "film_weights": "variance",
-               "pixel_samples": "independent"}
+               "pixel_samples": "sobol"}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2

@@ -29,7 +29,7 @@ class PathTracer(Method):
     work_unit = "samples"
     independent_iterations = True
 
-    OPTIONS = {"pixel_samples": "independent"}
+    OPTIONS = {"pixel_samples": "sobol"}
 
     def __init__(self, dscene: DeviceScene, settings: MethodSettings):
         super().__init__(dscene, settings)

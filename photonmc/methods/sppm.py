@@ -70,7 +70,7 @@ class Sppm(Method):
     default_iterations = 100
     OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False,
                "camera_paths": None, "radius_rule": "progressive", "balance": "mse",
-               "pixel_samples": "independent"}
+               "pixel_samples": "sobol"}
     RADIUS_RULES = ("progressive", "balanced")
     default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
     # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the

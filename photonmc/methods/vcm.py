@@ -60,7 +60,7 @@ class Vcm(Method):
     independent_iterations = True     # the radius is r_1 i^((alpha-1)/2) of the index i alone (fixed --light-paths)
     balances_light_paths = True       # --light-paths auto (the default); mbe's --light-paths are chain steps
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
-               "techniques": "vcm", "light_vertex_capacity": None, "measure_passes": False, "pixel_samples": "independent"}
+               "techniques": "vcm", "light_vertex_capacity": None, "measure_passes": False, "pixel_samples": "sobol"}
     # The light vertices and their grid live for one iteration (state.py does not save them).
     TRANSIENT = ("store", "grid")
     # What trace_photon hands this visitor: every non-delta vertex, with the MIS partial sums.
