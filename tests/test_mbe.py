@@ -318,11 +318,11 @@ def test_the_measured_variances_report_their_standard_errors():
 
 
 def test_vcm_passes_are_measured_before_chain_passes_are_preferred_to_them():
-    """--vcm-passes measured: where chain passes are predicted to win at K <= MEASURE_MAX_K,
-    vcm passes take EXPLORE_SHARE of the work until their variance is measured (vcm_variance
-    given); then the measured ratio decides. At a larger K, with --vcm-passes off, or auto (the
-    prediction alone), none is made."""
-    from photonmc.methods.pass_choice import EXPLORE_SHARE, MEASURE_MAX_K, PassChoice
+    """--vcm-passes measured: where chain passes are predicted to win, at any K, vcm passes
+    take EXPLORE_SHARE of the work until their variance is measured (vcm_variance given); then
+    the measured ratio decides. With --vcm-passes off, or auto (the prediction alone), none is
+    made."""
+    from photonmc.methods.pass_choice import EXPLORE_SHARE, PassChoice
     steps, r2 = 4096, 0.01
     effort = _KnownEffort(0.01, 1e-6, camera_work=20.0 * steps)    # chains predicted to win
 
@@ -338,11 +338,11 @@ def test_vcm_passes_are_measured_before_chain_passes_are_preferred_to_them():
                                      uniform_variance=2.0, radius_sq=r2, connections=1.0 * steps)
         return c, out
 
-    c, out = kinds(2)
-    assert c.ratio < 1.0 and out.startswith("cccc") and "v" in out[4:12]
-    share = c.explore_vcm_work / (c.explore_vcm_work + c.explore_chain_work)
-    assert EXPLORE_SHARE * 0.8 < share < EXPLORE_SHARE * 1.2, share
-    assert kinds(MEASURE_MAX_K + 1)[1] == "c" * 400
+    for k in (2, 16):
+        c, out = kinds(k)
+        assert c.ratio < 1.0 and out.startswith("cccc") and "v" in out[4:12], k
+        share = c.explore_vcm_work / (c.explore_vcm_work + c.explore_chain_work)
+        assert EXPLORE_SHARE * 0.8 < share < EXPLORE_SHARE * 1.2, (k, share)
     assert kinds(2, enabled=False)[1] == "c" * 400
     assert kinds(2, mode=False)[1] == "c" * 400
     assert kinds(2, measured=1e3)[1] == "c" * 400          # measured far worse: chain passes

@@ -37,8 +37,8 @@ measured variances instead: a vcm pass's from vcm's light-path balance (the mean
 estimates), a chain pass's by batch means of consecutive chain passes (BatchMeansVariance: the
 warm start correlates them), each set against the mean counted work of the passes it was
 measured on (made_work), the vcm pass's work with its connections counted once per pixel.
-Where chain passes are predicted to win at K <= MEASURE_MAX_K, vcm passes take EXPLORE_SHARE
-of the work until they are measured; those passes only measure and stay out of the film. The
+Where chain passes are predicted to win, vcm passes take EXPLORE_SHARE of the work until they
+are measured, at any K (since stop 47); those passes only measure and stay out of the film. The
 measured ratio decides alone only beyond MEASURED_Z standard errors from 1, and chain passes
 then keep CHAIN_WORK_SHARE / ratio^2 of the work (chain_share); nearer, it is combined with the
 prediction, each estimate of log(ratio) weighted by its inverse squared error (stop 43; until
@@ -298,11 +298,18 @@ class PassChoice:
 
     def _exploring(self, k: int, vcm_variance: float | None) -> bool:
         """Whether vcm passes are still to be measured: until vcm's light-path balance has
-        measured their variance, where the chain passes' K is at most MEASURE_MAX_K (a vcm
-        pass, one camera subpath per pixel, joins the film at the weight of a chain pass of
-        K, so more would cost more than it tells), and the prediction is not already for them."""
+        measured their variance, where the prediction is not already for them, at any K.
+        Until stop 47 only at K <= MEASURE_MAX_K: an exploring pass then joined the one film at
+        a chain pass's weight. Since stop 45 they stay out of the films, and with stratified
+        pixel positions the prediction credits a chain pass's K camera subpaths with sharing
+        its light subpaths where its light side is what limits it (the strip lights at K = 16:
+        noise 2.0x vcm's). Measured at 15 s, seeds 0-3, mbe over vcm (docs/mbe.md, stop 47):
+        light bay 1.15x -> 1.04x, strip lights 1.13 -> 1.11 (two seeds turn to vcm passes and
+        tie), Cornell box 1.02x -> 1.01x, mitsuba-style 0.97x -> 1.00x, closet 0.82x -> 0.88x
+        (within its seeds' spread), slit cabinet 1.09x both. (With independent positions the
+        Cornell box lost: 0.81x -> 1.12x, stop 46.)"""
         return (self.enabled and self.measured and vcm_variance is None and self.chain_passes >= MIN_CHAIN_PASSES
-                and k <= MEASURE_MAX_K and self.ratio is not None and self.ratio <= 1.0)
+                and self.ratio is not None and self.ratio <= 1.0)
 
     def _ratio(self, effort, most_k: int, steps: int, radius_sq: float, n_light: int | None = None,
                vcm_variance: float | None = None, chain_variance: float | None = None,
