@@ -54,7 +54,9 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "slab-gap": ("../tools/heldout/slab-gap.xml", "../../tools/heldout/slab-gap-64.exr", {"res": "64"}),
           # Held out from the stratified pixel positions (stop 46).
           "strip-lights": ("../tools/heldout/strip-lights.xml", "../../tools/heldout/strip-lights-64.exr",
-                           {"res": "64"})}
+                           {"res": "64"}),
+          # Held out from stop 47's defaults (made after their measurements).
+          "balustrade": ("../tools/heldout/balustrade.xml", "../../tools/heldout/balustrade-64.exr", {"res": "64"})}
 
 
 def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):
