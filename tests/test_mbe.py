@@ -122,8 +122,13 @@ def test_vcm_passes_where_the_chains_do_not_pay(write_scene):
     # the vcm passes trace what vcm's light-path balance measures on them
     passes = again.stats["passes"]
     assert passes["vcm_pass_light_paths_mean"] == pytest.approx(passes["light_path_balance"]["light_paths_mean"])
+    # wall time per kind of pass (statistics only): both kinds took some, no exploring pass
+    # under auto
+    seconds = passes["seconds_by_kind"]
+    assert seconds["chain"] > 0 and seconds["vcm"] > 0 and seconds["exploring_vcm"] == 0
     off = render(scene, 12, seed=2, max_depth=3, vcm_passes="off")
     assert off.stats["passes"]["chain_passes"] == 12 and off.stats["passes"]["vcm_passes"] == 0
+    assert off.stats["passes"]["seconds_by_kind"]["vcm"] == 0
 
 
 class _KnownEffort:

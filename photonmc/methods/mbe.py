@@ -50,6 +50,7 @@ variances at the work they were measured at"). The image combines the chain pass
 and the vcm passes' by their measured variances per pass (methods/film_weights.py).
 """
 import math
+import time
 
 import numpy as np
 import taichi as ti
@@ -90,6 +91,8 @@ from .light_balance import LightPathBalance
 from .pass_choice import BatchMeansVariance, PassChoice
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 from ..taichi_frontend import data_oriented
+
+PASS_KINDS = ("chain", "vcm", "exploring_vcm")     # the kinds of pass _iterate makes
 
 LEVELS = ("visibility", "contribution")
 
@@ -351,6 +354,7 @@ class Mbe(Vcm):
         self.b_sum = np.zeros(self.n_levels)
         self.passes_with_b = 0
         self.vertices_sum = 0
+        self.seconds_by_kind = np.zeros(len(PASS_KINDS))
 
     # -- the iteration -----------------------------------------------------------------
     def _steps_this_pass(self) -> int:
@@ -376,14 +380,23 @@ class Mbe(Vcm):
 
     def _iterate(self):
         it = self.iteration_index
+        start = time.perf_counter()
+        kind = self._iterate_kind(it)
+        # Wall time per kind of pass: statistics only (the choice counts work, not time, so
+        # that a seed gives one image), to set the cost model against what the passes took.
+        self.seconds_by_kind[PASS_KINDS.index(kind)] += time.perf_counter() - start
+
+    def _iterate_kind(self, it: int) -> str:
         if self.pass_choice.next_is_vcm(self.effort, self.camera_paths, self.max_camera_paths, self.steps_last,
                                         self.radius ** 2, self.light_balance.next_light_paths(),
                                         self.light_balance.pass_variance(), self.chain_batches.pass_variance(),
                                         (self.light_balance.pass_variance_relative_error(),
                                          self.chain_batches.relative_error())):
-            self._vcm_pass(it, keep=not self.pass_choice.exploring_now)
-        else:
-            self._chain_pass(it)
+            exploring = self.pass_choice.exploring_now
+            self._vcm_pass(it, keep=not exploring)
+            return "exploring_vcm" if exploring else "vcm"
+        self._chain_pass(it)
+        return "chain"
 
     def warm_up(self):
         """A chain pass, then (unless --vcm-passes off) a vcm pass, whose kernels would
@@ -966,7 +979,8 @@ class Mbe(Vcm):
             "large_step_last_iteration": self.pool.large_step,
             "effort": self.effort.stats(),
             "chain_bias": self.chain_bias.stats(),
-            "passes": {**self.pass_choice.stats(), "light_path_balance": self.light_balance.stats()},
+            "passes": {**self.pass_choice.stats(), "light_path_balance": self.light_balance.stats(),
+                       "seconds_by_kind": dict(zip(PASS_KINDS, self.seconds_by_kind.tolist()))},
             "chains": self.n_chains,
             "mis": "modified" if self.modified_mis else "plain",
             "radius": self.radius, "initial_radius": self.r1, "alpha": self.alpha,
