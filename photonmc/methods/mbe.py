@@ -289,6 +289,17 @@ class Mbe(Vcm):
         """mbe stores the camera subpaths' vertices: as many subpaths per pixel as it may trace."""
         return self.n_pixels * self.max_camera_paths
 
+    def _index_serial(self, n_paths: int) -> tuple[bool, bool]:
+        """Whether the camera side's index_vertices loops run serially: decided by the most
+        camera subpaths a pass may trace and the store's capacity, not by this pass's K (as
+        vcm's rule would), so that one variant of _camera_side serves the render. Decided per
+        pass, K's first moves (1 -> 4 -> 5 at 80x60) crossed runtime.SERIAL_ITEMS and compiled
+        two more variants mid-render: 0.15-0.35 s each from the offline cache, about 1 s cold,
+        inside converge's timed render (warm_up compiles the variant it runs)."""
+        most = self._stored_paths()
+        slots = self.grid.table_slots(max(self.store.capacity, most)) if self.grid is not None else 0
+        return runtime.serial_loop(most), runtime.serial_loop(slots)
+
     def _allocate_store(self, capacity: int):
         super()._allocate_store(capacity)
         # Every model stays alive: a kernel specialised on a freed one must never match a new
