@@ -869,3 +869,15 @@ def test_where_most_light_subpaths_contribute_mbe_keeps_to_vcm():
     assert err["chain passes"] < 1.1 * err["vcm"] and err["defaults"] < 1.1 * err["vcm"]
     assert err["chain passes"] < 0.95 * err["chains alone"]
 
+
+
+def test_one_camera_side_kernel_variant_whatever_k():
+    """The camera side's loops are serial or not by the most subpaths a pass may trace, not by
+    this pass's K: each answer is a kernel variant, and K moving mid-render compiled new ones
+    inside the timed render (docs/mbe.md, stop 48)."""
+    for res in (16, 64):
+        p = prepare(load_scene(SCENES / "cornell-box" / "scene.xml", {"res": res}), method="mbe", seed=0)
+        m = p.method
+        flags = {m._index_serial(k * m.n_pixels) for k in range(1, m.max_camera_paths + 1)}
+        p.release()
+        assert len(flags) == 1, (res, flags)
