@@ -870,7 +870,6 @@ def test_where_most_light_subpaths_contribute_mbe_keeps_to_vcm():
     assert err["chain passes"] < 0.95 * err["chains alone"]
 
 
-
 def test_one_camera_side_kernel_variant_whatever_k():
     """The camera side's loops are serial or not by the most subpaths a pass may trace, not by
     this pass's K: each answer is a kernel variant, and K moving mid-render compiled new ones
