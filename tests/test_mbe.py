@@ -535,14 +535,15 @@ def test_the_image_combines_the_two_films_by_their_measured_variances(write_scen
     combination by the weights methods/film_weights.py gives from the two kinds' measured
     variances per pass (docs/mbe.md, "Two films"); --film-weights equal weighs every pass
     alike, the mean of all passes. The passes are made by hand (80 chain passes, enough for
-    their batch means, then 40 vcm passes, enough for their pairs), so that both films fill
-    whatever the pass choice would do; a chain pass of four camera subpaths per pixel has
-    about a quarter of a vcm pass's variance. In the furnace both reach the analytic radiance."""
+    their batch means, then 40 vcm passes, each with a twin, enough for their variance), so
+    that both films fill whatever the pass choice would do; a chain pass of four camera
+    subpaths per pixel has about a quarter of a vcm pass's variance. In the furnace both reach the analytic radiance."""
     scene = load_scene(write_scene(furnace_xml("sphere")))
     expected = furnace_expectation(3)
     for weights in ("variance", "equal"):
         p = prepare(scene, method="mbe", seed=2, max_depth=3, options={"camera_paths": 4, "film_weights": weights})
         m = p.method
+        m.twins.EVERY = 1       # a twin per vcm pass: 40 of them measure the vcm passes' variance
         for kind in ["chain"] * 80 + ["vcm"] * 40:
             (m._chain_pass if kind == "chain" else m._vcm_pass)(m.iteration_index)
             m.iterations += 1
@@ -563,6 +564,42 @@ def test_the_image_combines_the_two_films_by_their_measured_variances(write_scen
         lum = luminance(m.image())
         p.release()
         assert abs(lum.mean() - expected) < 5 * lum.std() / math.sqrt(lum.size) + 2e-3 * expected, lum.mean()
+
+
+def _twin_variances(scene, film_passes, seed=3, **options):
+    """mbe's twins and pairs after 20 exploring vcm passes (out of the film: each gets a twin)
+    and film_passes vcm passes of the film, made by hand."""
+    p = prepare(scene, method="mbe", seed=seed, max_depth=3, options=options)
+    m = p.method
+    for keep in [False] * 20 + [True] * film_passes:
+        m._vcm_pass(m.iteration_index, keep=keep)
+        m.iterations += 1
+    stats = m.method_stats()["passes"]
+    spp = m.independent.film.film.samples_per_pixel
+    p.release()
+    return stats, spp
+
+
+def test_twin_vcm_passes_hold_the_pixel_positions(write_scene):
+    """With stratified pixel positions a vcm pass's variance is read from twins: the pass
+    again at the same positions with other random numbers, out of the film (docs/mbe.md,
+    "Twin vcm passes"). Where the camera sees the lamp's edge (the Cornell box) the variance
+    of where a camera subpath starts in its pixel is most of what consecutive passes differ
+    by, and the twins read far less; in the furnace, whose image is flat, the positions do not
+    matter and both read the same variance. Every exploring pass gets a twin, and every film
+    pass until 16 twins are in, then a film pass one in TwinVariance.EVERY; twins never join the
+    film; independent positions need none."""
+    from photonmc.methods.pass_choice import TwinVariance
+    cornell, spp = _twin_variances(load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 16}), 2 * TwinVariance.EVERY)
+    print("cornell", cornell["vcm_pass_variance_pairs"], cornell["vcm_pass_variance_twins"])
+    assert cornell["twin_passes"] == 20 + 2 and spp == 2 * TwinVariance.EVERY
+    assert cornell["vcm_pass_variance_twins"] < 0.2 * cornell["vcm_pass_variance_pairs"]
+    furnace, _ = _twin_variances(load_scene(write_scene(furnace_xml("sphere"))), 0)
+    ratio = furnace["vcm_pass_variance_twins"] / furnace["vcm_pass_variance_pairs"]
+    print("furnace", furnace["vcm_pass_variance_pairs"], furnace["vcm_pass_variance_twins"])
+    assert furnace["twin_passes"] == 20 and 0.7 < ratio < 1.4
+    independent, _ = _twin_variances(load_scene(write_scene(furnace_xml("sphere"))), 0, pixel_samples="independent")
+    assert independent["twin_passes"] == 0 and independent["vcm_pass_variance_twins"] is None
 
 
 def test_warm_up_compiles_the_vcm_pass_and_reset_forgets_it():

@@ -17,7 +17,9 @@ lengths the kinds seldom mix. Here each kind keeps its own film, and the image i
 
 v the variance of one pass of the kind (of its luminance, mean over pixels: the chain
 passes' by batch means, pass_choice.BatchMeansVariance, since consecutive chain passes are
-correlated; the vcm passes' from pairs of consecutive passes, light_balance.LightPathBalance),
+correlated; the vcm passes' from twin passes at the same pixel positions where those are
+stratified, pass_choice.TwinVariance, else from pairs of consecutive passes,
+light_balance.LightPathBalance),
 n the passes in each film: the inverse-variance combination of two independent estimates.
 One weight serves every pixel: per-pixel weights would follow per-pixel variance estimates,
 far noisier than these. It is decided when the image is read, from everything measured, so a

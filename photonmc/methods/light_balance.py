@@ -47,6 +47,34 @@ FEWEST = 64               # the centre's range: [most / FEWEST, most]
 START = 4                 # the centre starts at most / START, two octaves from the top, four from the bottom
 
 
+class RunningMean:
+    """The mean of a stream of estimates and its standard error (Welford's update): a pass's
+    variance from many pair estimates, whose spread is heavy-tailed, so that the standard
+    error comes from their own spread, not from a Gaussian model."""
+
+    def __init__(self):
+        self.count = 0
+        self.mean = 0.0
+        self.m2 = 0.0
+
+    def add(self, x: float) -> None:
+        self.count += 1
+        delta = x - self.mean
+        self.mean += delta / self.count
+        self.m2 += delta * (x - self.mean)
+
+    def mean_after(self, least: int) -> float | None:
+        """The mean, once `least` estimates are in."""
+        return self.mean if self.count >= least else None
+
+    def relative_error_after(self, least: int) -> float | None:
+        """The standard error of the mean over the mean (the spread over the root of the
+        count), once `least` (at least 2) estimates are in and the mean is positive."""
+        if self.count < max(least, 2) or not self.mean > 0.0:
+            return None
+        return math.sqrt(self.m2 / (self.count - 1)) / math.sqrt(self.count) / self.mean
+
+
 class LightPathBalance:
     """The light subpaths of each vcm pass, between most / FEWEST and `most` (the store's)."""
 
@@ -63,9 +91,7 @@ class LightPathBalance:
         self.passes = 0
         self.light_paths_sum = 0.0
         self.last_ratio = 0.0          # lower probe's variance x work over the upper's, at the last move
-        self.variance_mean = 0.0       # a pass's variance, mean over all estimates (pass_variance)
-        self.variance_m2 = 0.0         # and their squared deviations (Welford), for its standard error
-        self.estimates = 0
+        self.variance = RunningMean()  # a pass's variance, mean over all estimates (pass_variance)
 
     def probe(self, side: int) -> int:
         n = 2.0 ** self.log2_centre * (PROBE if side == 0 else 1.0 / PROBE)
@@ -85,10 +111,7 @@ class LightPathBalance:
         if not second or not (math.isfinite(spread) and math.isfinite(work)):
             return
         variance = 0.5 * spread / n_pixels
-        self.estimates += 1
-        delta = variance - self.variance_mean
-        self.variance_mean += delta / self.estimates
-        self.variance_m2 += delta * (variance - self.variance_mean)
+        self.variance.add(variance)
         self.sums[2 * side] += variance
         self.sums[2 * side + 1] += work
         self.blocks[side] += 1
@@ -108,16 +131,13 @@ class LightPathBalance:
     def pass_variance(self) -> float | None:
         """The variance of one pass (luminance, mean over pixels) at about the centre's light
         subpaths, once MEASURED_AFTER estimates are in."""
-        return self.variance_mean if self.estimates >= MEASURED_AFTER else None
+        return self.variance.mean_after(MEASURED_AFTER)
 
     def pass_variance_relative_error(self) -> float | None:
-        """The standard error of pass_variance() over its value: the spread of the estimates
-        over the root of their number. A rare large estimate raises it, so that mbe's pass
-        choice does not trust a mean that one event decides (methods/pass_choice.py)."""
-        if self.estimates < MEASURED_AFTER or not self.variance_mean > 0.0:
-            return None
-        sd = math.sqrt(self.variance_m2 / (self.estimates - 1))
-        return sd / math.sqrt(self.estimates) / self.variance_mean
+        """The standard error of pass_variance() over its value. A rare large estimate raises
+        it, so that mbe's pass choice does not trust a mean that one event decides
+        (methods/pass_choice.py)."""
+        return self.variance.relative_error_after(MEASURED_AFTER)
 
     @staticmethod
     def work(n_pixels: int, camera_vertices: float, connections: float, segments: float, light_rays: float,

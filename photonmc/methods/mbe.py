@@ -88,11 +88,12 @@ from .effort import EffortBalance, UniformWeight, uniform_weight_option
 from .film_weights import count_weights, film_weights, shrunk_log_ratio
 from .guided import LADDER_BURN_IN
 from .light_balance import LightPathBalance
-from .pass_choice import BatchMeansVariance, PassChoice
+from .pass_choice import BatchMeansVariance, PassChoice, TwinVariance
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 from ..taichi_frontend import data_oriented
 
 PASS_KINDS = ("chain", "vcm", "exploring_vcm")     # the kinds of pass _iterate makes
+TWIN_INDEX_BIT = 1 << 30      # a twin pass's random-number index: the pass's with this bit flipped
 
 LEVELS = ("visibility", "contribution")
 
@@ -344,6 +345,9 @@ class Mbe(Vcm):
         self.chain_bias = ChainBias()
         # the vcm passes' light subpaths, measured as vcm's own are (methods/light_balance.py)
         self.light_balance = LightPathBalance(self.n_light)
+        # ... and their variance with the pixel positions held, where the films stratify them
+        # (pass_choice.TwinVariance): what the kinds are compared and the films weighed by
+        self.twins = TwinVariance() if self.independent is not None and self.independent.sobol_pixels else None
         self.totals = np.zeros((self.n_levels, N_COUNTERS), np.int64)
         # pre_scale's and b_mis's values, read without a kernel. Before a pass has measured
         # them, the contribution level's (a luminance, in radiance units) start at the
@@ -398,11 +402,11 @@ class Mbe(Vcm):
         self.seconds_by_kind[PASS_KINDS.index(kind)] += time.perf_counter() - start
 
     def _iterate_kind(self, it: int) -> str:
+        vcm_variance, vcm_error = self._vcm_pass_variance()
         if self.pass_choice.next_is_vcm(self.effort, self.camera_paths, self.max_camera_paths, self.steps_last,
                                         self.radius ** 2, self.light_balance.next_light_paths(),
-                                        self.light_balance.pass_variance(), self.chain_batches.pass_variance(),
-                                        (self.light_balance.pass_variance_relative_error(),
-                                         self.chain_batches.relative_error())):
+                                        vcm_variance, self.chain_batches.pass_variance(),
+                                        (vcm_error, self.chain_batches.relative_error())):
             exploring = self.pass_choice.exploring_now
             self._vcm_pass(it, keep=not exploring)
             return "exploring_vcm" if exploring else "vcm"
@@ -429,10 +433,20 @@ class Mbe(Vcm):
         v = self.independent
         v.r1 = self.r1
         n_light = self.light_balance.next_light_paths()
+        points = self.vcm_pixel_passes.take(1)
         spread, segments, vertices, connections, merges = v.vcm_pass(
-            it, self.camera_paths_traced, n_light, keep, self.vcm_pixel_passes.take(1), pixel_samples.VCM_PASS_STREAM)
+            it, self.camera_paths_traced, n_light, keep, points, pixel_samples.VCM_PASS_STREAM)
         work = LightPathBalance.work(self.n_pixels, vertices, connections, segments, v.vertices_last, merges)
         self.light_balance.observe(n_light, spread, self.n_pixels, work)
+        if self.twins is not None and self.twins.due(exploring=not keep):
+            # The same pixel positions, radius and light subpath count, other random numbers
+            # (an index no pass uses), out of the film. The next pass's pair estimate for the
+            # light-path balance is then read against the twin, whose positions are as
+            # independent of that pass's as this pass's are.
+            twin = v.vcm_pass(it ^ TWIN_INDEX_BIT, self.camera_paths_traced, n_light, False, points,
+                              pixel_samples.VCM_PASS_STREAM)
+            self.twins.observe(twin[0], self.n_pixels)
+            self.pass_choice.count_twin(self.effort, self.camera_paths, self.steps_last, n_light)
         if not keep:
             return
         self.radius = v.radius
@@ -925,7 +939,15 @@ class Mbe(Vcm):
         if self.options["film_weights"] != "variance":
             return 0.0
         return shrunk_log_ratio(self.chain_batches.pass_variance(), self.chain_batches.relative_error(),
-                                self.light_balance.pass_variance(), self.light_balance.pass_variance_relative_error())
+                                *self._vcm_pass_variance())
+
+    def _vcm_pass_variance(self) -> tuple[float | None, float | None]:
+        """A vcm pass's variance as it counts in its film, and its relative standard error:
+        with stratified pixel positions the twins' (positions held, pass_choice.TwinVariance),
+        with independent ones the light-path balance's pairs of consecutive passes."""
+        if self.twins is not None:
+            return self.twins.pass_variance(), self.twins.relative_error()
+        return self.light_balance.pass_variance(), self.light_balance.pass_variance_relative_error()
 
     def film_weights(self) -> tuple[float, float]:
         """The weights of the chain passes' film and the vcm passes' in the image."""
@@ -991,7 +1013,10 @@ class Mbe(Vcm):
             "effort": self.effort.stats(),
             "chain_bias": self.chain_bias.stats(),
             "passes": {**self.pass_choice.stats(), "light_path_balance": self.light_balance.stats(),
-                       "seconds_by_kind": dict(zip(PASS_KINDS, self.seconds_by_kind.tolist()))},
+                       "seconds_by_kind": dict(zip(PASS_KINDS, self.seconds_by_kind.tolist())),
+                       "vcm_pass_variance_pairs": self.light_balance.variance.mean_after(1),
+                       "vcm_pass_variance_twins": self.twins.variance.mean_after(1) if self.twins else None,
+                       "twin_passes": self.twins.variance.count if self.twins else 0},
             "chains": self.n_chains,
             "mis": "modified" if self.modified_mis else "plain",
             "radius": self.radius, "initial_radius": self.r1, "alpha": self.alpha,

@@ -33,8 +33,9 @@ techniques count K times); near the break-even, chain passes of one camera subpa
 run in pairs, measure it (MEASURE_BAND below).
 
 --vcm-passes measured (the default since stop 42; stop 40's experiment) compares the kinds by
-measured variances instead: a vcm pass's from vcm's light-path balance (the mean of its pair
-estimates), a chain pass's by batch means of consecutive chain passes (BatchMeansVariance: the
+measured variances instead: a vcm pass's from twin passes where pixel positions are stratified
+(TwinVariance, since stop 49), from vcm's light-path balance (the mean of its pair estimates)
+where they are independent, a chain pass's by batch means of consecutive chain passes (BatchMeansVariance: the
 warm start correlates them), each set against the mean counted work of the passes it was
 measured on (made_work), the vcm pass's work with its connections counted once per pixel.
 Where chain passes are predicted to win, vcm passes take EXPLORE_SHARE of the work until they
@@ -62,6 +63,7 @@ import math
 import numpy as np
 
 from .effort import DEPOSIT_WORK
+from .light_balance import MEASURED_AFTER, RunningMean
 
 # Time per pass ~ CAMERA_WORK_WEIGHT x camera work + light work + CHAIN_STEP_WORK x chain steps,
 # in the effort balance's units (camera work: a ray per camera subpath, three per stored
@@ -162,6 +164,55 @@ class BatchMeansVariance:
         if self.batches < self.AFTER:
             return None
         return math.sqrt(2.0 / (self.batches - 1))
+
+
+class TwinVariance:
+    """The variance of a vcm pass as its film sees it under stratified pixel positions, read
+    from twin passes (docs/mbe.md, "Twin vcm passes", stop 49).
+
+    vcm's light-path balance reads a pass's variance from two consecutive passes, whose camera
+    subpaths start at independent points of the pixels (kernels/pixel_samples.py): it
+    includes the variance of where in its pixel a camera subpath starts (a lamp's edge, a
+    slit, seen by the camera). A film whose passes take stratified positions removes that part
+    at a rate well above 1 / passes, so it is not what a vcm pass adds to the film; the chain
+    passes' batch means, over 8 passes of K points per pixel each, hold almost none of it.
+    In the held-out strip lights it is 99.8 % of the pair estimate (2.53 against 0.0060 with
+    the positions held), and compared by it the chain passes read 5-10x better than vcm
+    passes per unit of work where, rendered, they are 3.7x worse.
+
+    A twin repeats a vcm pass with the same pixel positions, light subpaths, merging radius and
+    light subpath count, and other random numbers, out of the film: half its squared difference
+    to the pass is the pass's variance with the positions held. Every exploring vcm pass (out
+    of the film already) gets one, and so does every vcm pass until MEASURED_AFTER twins are in
+    (where the prediction takes vcm passes at once, there is no exploration); after that a vcm
+    pass of the film gets one in EVERY, so that the estimate follows the radius as it
+    shrinks."""
+    EVERY = 32
+
+    def __init__(self):
+        self.variance = RunningMean()
+        self.film_passes = 0        # vcm passes of the film since the last twin
+
+    def due(self, exploring: bool) -> bool:
+        """Whether the vcm pass just made gets a twin."""
+        if exploring or self.variance.count < MEASURED_AFTER:
+            return True
+        self.film_passes += 1
+        if self.film_passes >= self.EVERY:
+            self.film_passes = 0
+            return True
+        return False
+
+    def observe(self, spread: float, n_pixels: int) -> None:
+        """The twin's summed squared difference to its pass (luminance, over the pixels)."""
+        if math.isfinite(spread):
+            self.variance.add(0.5 * spread / n_pixels)
+
+    def pass_variance(self) -> float | None:
+        return self.variance.mean_after(MEASURED_AFTER)
+
+    def relative_error(self) -> float | None:
+        return self.variance.relative_error_after(MEASURED_AFTER)
 
 
 class PassChoice:
@@ -284,6 +335,18 @@ class PassChoice:
         self.vcm_light_paths_sum += n_light
         self.vcm_work_since_chain += self.work(effort, k, steps, n_light, connections_per_pixel=self.measured)[1]
         return True
+
+    def count_twin(self, effort, k: int, steps: int, n_light: int) -> None:
+        """A twin of the vcm pass just chosen (TwinVariance): its work counts as that pass's
+        does, toward the exploration's share or against the chain passes' share (once chain
+        passes have measured the cost model's counts)."""
+        if self.traced <= 0 or effort.sum_camera_paths <= 0:
+            return
+        work = self.work(effort, k, steps, n_light, connections_per_pixel=True)[1]
+        if self.exploring_now:
+            self.explore_vcm_work += work
+        else:
+            self.vcm_work_since_chain += work
 
     def chain_share(self) -> float:
         """The share of the work chain passes keep while vcm passes win: CHAIN_WORK_SHARE, and
