@@ -537,7 +537,8 @@ def test_the_image_combines_the_two_films_by_their_measured_variances(write_scen
     alike, the mean of all passes. The passes are made by hand (80 chain passes, enough for
     their batch means, then 40 vcm passes, each with a twin, enough for their variance), so
     that both films fill whatever the pass choice would do; a chain pass of four camera
-    subpaths per pixel has about a quarter of a vcm pass's variance. In the furnace both reach the analytic radiance."""
+    subpaths per pixel has about a quarter of a vcm pass's variance. In the furnace both reach
+    the analytic radiance."""
     scene = load_scene(write_scene(furnace_xml("sphere")))
     expected = furnace_expectation(3)
     for weights in ("variance", "equal"):
@@ -590,7 +591,8 @@ def test_twin_vcm_passes_hold_the_pixel_positions(write_scene):
     pass until 16 twins are in, then a film pass one in TwinVariance.EVERY; twins never join the
     film; independent positions need none."""
     from photonmc.methods.pass_choice import TwinVariance
-    cornell, spp = _twin_variances(load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 16}), 2 * TwinVariance.EVERY)
+    box = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 16})
+    cornell, spp = _twin_variances(box, 2 * TwinVariance.EVERY)
     print("cornell", cornell["vcm_pass_variance_pairs"], cornell["vcm_pass_variance_twins"])
     assert cornell["twin_passes"] == 20 + 2 and spp == 2 * TwinVariance.EVERY
     assert cornell["vcm_pass_variance_twins"] < 0.2 * cornell["vcm_pass_variance_pairs"]

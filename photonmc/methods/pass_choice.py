@@ -35,9 +35,10 @@ run in pairs, measure it (MEASURE_BAND below).
 --vcm-passes measured (the default since stop 42; stop 40's experiment) compares the kinds by
 measured variances instead: a vcm pass's from twin passes where pixel positions are stratified
 (TwinVariance, since stop 49), from vcm's light-path balance (the mean of its pair estimates)
-where they are independent, a chain pass's by batch means of consecutive chain passes (BatchMeansVariance: the
-warm start correlates them), each set against the mean counted work of the passes it was
-measured on (made_work), the vcm pass's work with its connections counted once per pixel.
+where they are independent; a chain pass's by batch means of consecutive chain passes
+(BatchMeansVariance: the warm start correlates them); each set against the mean counted work
+of the passes it was measured on (made_work), the vcm pass's work with its connections counted
+once per pixel.
 Where chain passes are predicted to win, vcm passes take EXPLORE_SHARE of the work until they
 are measured, at any K (since stop 47); those passes only measure and stay out of the film. The
 measured ratio decides alone only beyond MEASURED_Z standard errors from 1, and chain passes
@@ -180,9 +181,9 @@ class TwinVariance:
     the positions held), and compared by it the chain passes read 5-10x better than vcm
     passes per unit of work where, rendered, they are 3.7x worse.
 
-    A twin repeats a vcm pass with the same pixel positions, light subpaths, merging radius and
-    light subpath count, and other random numbers, out of the film: half its squared difference
-    to the pass is the pass's variance with the positions held. Every exploring vcm pass (out
+    A twin repeats a vcm pass with the same pixel positions, merging radius and number of light
+    subpaths, and other random numbers (so other light subpaths), out of the film: half its
+    squared difference to the pass is the pass's variance with the positions held. Every exploring vcm pass (out
     of the film already) gets one, and so does every vcm pass until MEASURED_AFTER twins are in
     (where the prediction takes vcm passes at once, there is no exploration); after that a vcm
     pass of the film gets one in EVERY, so that the estimate follows the radius as it
