@@ -197,6 +197,12 @@ def _add_vcm_options(parser):
                         "(and sppm's --photons auto) minimises: the image's MSE (default) or its relative MSE, each "
                         "pixel's error weighted by 1 / (its running mean^2 + (0.1 x the image's mean)^2) "
                         "(docs/mbe.md, docs/guiding.md)")
+    g.add_argument("--camera-variance", choices=["twins", "pairs"],
+                   help="sppm, visibility, spatial-tf: where the effort balance reads the camera side's variance "
+                        "under stratified pixel positions: from twin camera paths at the same positions, plus what "
+                        "the positions' stratification leaves after the paths so far (twins; sppm's default), or "
+                        "from consecutive passes (pairs; visibility's and spatial-tf's default) (docs/effort.md, "
+                        "'Twin camera paths')")
 
 
 def _method_options(args) -> dict:
@@ -209,7 +215,8 @@ def _method_options(args) -> dict:
             "large_step": args.large_step, "suffix_mutation": args.suffix_mutation,
             "mutation": args.mutation, "warm_start": args.warm_start,
             "balance": args.balance, "uniform_weight": args.uniform_weight, "vcm_passes": args.vcm_passes,
-            "film_weights": args.film_weights, "pixel_samples": args.pixel_samples}
+            "film_weights": args.film_weights, "pixel_samples": args.pixel_samples,
+            "camera_variance": args.camera_variance}
 
 
 def _seed_list(text: str) -> list[int]:

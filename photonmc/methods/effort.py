@@ -41,6 +41,9 @@ MAX_CHANGE = 2.0         # photons per pass change by at most this factor per it
 MAX_PER_PIXEL = 64       # at most this many photons per pixel per pass (iteration granularity)
 HISTORY = 256            # iterations the estimates look back over (bounded work per iteration)
 TRIM = 32                # V_c leaves out the largest 1/TRIM of its history
+# A scrambled net's mean over a pixel whose value jumps along curves (edges) has variance
+# O(M^-1.5) after M points (Owen's scrambled nets; docs/effort.md, "Twin camera paths").
+POSITION_EXPONENT = 1.5
 # Cost of one deposit into a measurement point, in photon segments: 1.3 and 1.8 measured
 # (visibility at 64x64 with 1, 4 and 16 camera paths per pixel on light-gap and the held-out
 # closet: photon-pass time against segments and deposits; docs/effort.md).
@@ -48,13 +51,18 @@ DEPOSIT_WORK = 1.5
 
 
 class EffortBalance:
-    def __init__(self, n_pixels: int, initial: int, alpha: float, trim_camera: bool = True):
+    def __init__(self, n_pixels: int, initial: int, alpha: float, trim_camera: bool = True,
+                 held_camera: bool = False):
         """trim_camera: V_c is the mean of the last HISTORY estimates without their largest
         1/TRIM (the photon methods' choice, see shares); False: the plain mean of every
         estimate since the start (mbe's, docs/mbe.md, "The radius follows the camera
-        subpaths")."""
+        subpaths"). held_camera: V_c comes only from the passes that hand observe() a
+        camera_held estimate (twin camera paths, docs/effort.md), not from consecutive passes."""
         self.n_pixels = n_pixels
         self.trim_camera = bool(trim_camera)
+        self.held_camera = bool(held_camera)
+        self.pair_sum = 0.0                  # held_camera: the pairs' V_c estimates, summed
+        self.pair_samples = 0
         self.camera_sum = 0.0                # every V_c estimate so far (trim_camera False)
         self.photons = int(initial)
         self.alpha = float(alpha)
@@ -73,13 +81,15 @@ class EffortBalance:
 
     def observe(self, photons: int, spread: float, half_difference: float, radius_sq: float,
                 camera_work: float, photon_work: float, camera_paths: int = 1, deposits: float = 0.0,
-                keep: bool = True) -> float | None:
+                keep: bool = True, camera_held: float | None = None) -> float | None:
         """One iteration of `photons` photon paths and `camera_paths` camera paths per pixel:
         `spread` = mean over pixels of (this iteration's estimate - the last one's)^2,
         `half_difference` = mean of n (t_a - t_b)^2 / 4, `radius_sq` = mean squared gather
         radius of the pass, `deposits` the photons deposited into its measurement points.
         Returns this pair's V_c estimate (None for the first iteration); keep=False leaves it
-        and the V_p estimate out of the balance's estimates (mbe's measurement passes)."""
+        and the V_p estimate out of the balance's estimates (mbe's measurement passes).
+        camera_held: this pass's V_c per camera path with the pixel positions held (twins),
+        which a held_camera balance takes instead of the pair's."""
         self.observed += 1
         self.sum_deposits += deposits
         self.sum_camera_work += camera_work
@@ -94,11 +104,17 @@ class EffortBalance:
         # E[(e_i - e_j)^2] = V_c (1/K_i + 1/K_j) + V_p (1/n_i + 1/n_j).
         v_p = half_difference
         v_c = (spread - v_p * (1.0 / photons + 1.0 / last)) / (1.0 / camera_paths + 1.0 / last_k)
+        if self.held_camera:
+            if keep:
+                self.pair_sum += v_c
+                self.pair_samples += 1
+            v_c = camera_held
         if keep:
             self.photon_variances_r2.append(v_p * radius_sq)
-            self.camera_variances.append(v_c)
-            self.camera_sum += v_c
-            self.samples += 1
+            if v_c is not None:
+                self.camera_variances.append(v_c)
+                self.camera_sum += v_c
+                self.samples += 1
         del self.camera_variances[:-HISTORY], self.photon_variances_r2[:-HISTORY]
         self.radius_sq = radius_sq
         return v_c
@@ -123,8 +139,21 @@ class EffortBalance:
             v_c = math.fsum(camera[:keep]) / keep
         else:
             v_c = self.camera_sum / self.samples
+        if self.held_camera and self.pair_samples:
+            v_c += self._position_share(v_c)
         return (v_c,
                 math.fsum(self.photon_variances_r2) / len(self.photon_variances_r2) / self.radius_sq)
+
+    def _position_share(self, v_held: float) -> float:
+        """What the pixel positions still add to V_c per camera path (held_camera): the pairs'
+        V_c less the twins' is the positions' variance V_pos of one camera path; over M
+        stratified points per pixel the film keeps V_pos M^-e of it (e = POSITION_EXPONENT)
+        instead of V_pos / M, whose effect on the next paths is that of a variance
+        e V_pos M^(1-e) falling as 1 / M. Early in a render it is most of V_c, late in it
+        little."""
+        v_pos = max(self.pair_sum / self.pair_samples - v_held, 0.0)
+        m = max(self.sum_camera_paths, 1.0)
+        return POSITION_EXPONENT * v_pos * m ** (1.0 - POSITION_EXPONENT)
 
     def _optimum(self, deposits_as_camera_work: bool):
         """n* for one camera path per pixel, inf where no camera-side error is measured yet,

@@ -50,8 +50,16 @@ MAX_CAMERA_PATHS = 64             # and at most this many camera paths per pixel
 ALPHA_FAST = 0.5                  # --radius-rule balanced: alpha's factor while the bias dominates
 BIAS_MIN_PASSES = 16              # and the passes a pixel's bias is measured over before it counts,
 BIAS_Z = 3.0                      # and by how many of its standard errors the bias must dominate
-# One camera path's accumulators: direct light so far, its pixel, the initial-radius rule.
-CameraPath = ti.types.struct(direct=vec3, pixel=ti.i32, r_abs=ti.f32, r_per_dist=ti.f32, rays=ti.i32)
+# Twin camera paths (docs/effort.md, "Twin camera paths"): a twin's random numbers are its
+# path's index with this bit set, an index no camera path has (at most MP_BUDGET of them).
+TWIN_BIT = 1 << 30
+TWINS_FIRST = 16                  # every pass of the first this many has twins,
+TWINS_EVERY = 8                   # and one pass in this many after that
+# One camera path's accumulators: direct light so far, its pixel, the initial-radius rule;
+# twin: a twin of the path already traced to MP `pixel` (it writes no MP), matched: whether
+# it reached that same MP.
+CameraPath = ti.types.struct(direct=vec3, pixel=ti.i32, r_abs=ti.f32, r_per_dist=ti.f32, rays=ti.i32, twin=ti.i32,
+                             matched=ti.i32)
 
 
 class _HashSource:
@@ -70,13 +78,14 @@ class Sppm(Method):
     default_iterations = 100
     OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False,
                "camera_paths": None, "radius_rule": "progressive", "balance": "mse",
-               "pixel_samples": "sobol"}
+               "pixel_samples": "sobol", "camera_variance": "twins"}
     RADIUS_RULES = ("progressive", "balanced")
     default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
     # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the
     # pass's measurement points with their per-pass accumulators (up to MP_BUDGET points).
     TRANSIENT = ("grid", "mp_p", "mp_n", "mp_wo", "mp_W", "mp_bsdf", "mp_depth", "mp_valid", "mp_radius",
-                 "mp_direct", "M", "phi", "phi_odd", "phi_inner")
+                 "mp_direct", "mp_twin_direct", "mp_twin_matched", "M", "phi", "phi_odd", "phi_inner",
+                 "camera_estimate", "twin_unmatched")
     n_levels = 1          # flux accumulators per measurement point (one per Markov-chain level)
     # The guided methods add one accumulator after the levels': the uniform photons' own
     # estimate (methods/guided.py), whose halves the update keeps apart from the levels'.
@@ -99,7 +108,6 @@ class Sppm(Method):
         self.photons_per_iteration = int(self.n_pixels if opts["photons"] in (None, "auto") else opts["photons"])
         self.alpha = float(opts["alpha"])
         self._set_camera_paths(opts["camera_paths"])
-        self.effort = EffortBalance(self.n_pixels, self.photons_per_iteration, self.alpha)   # measured either way (stats)
         if not 1 <= self.photons_per_iteration <= 1 << 28:
             raise SettingsError(f"--photons must be between 1 and 2^28, got {self.photons_per_iteration}")
         if not 0.0 < self.alpha < 1.0:
@@ -122,6 +130,17 @@ class Sppm(Method):
         # relMSE does (docs/guiding.md, "The closet's error, and two levers measured")
         self.relative_balance = opts["balance"] == "relmse"
         self.sobol_pixels = pixel_samples.uses_sobol(opts)
+        if opts["camera_variance"] not in ("twins", "pairs"):
+            raise SettingsError(f"--camera-variance must be 'twins' or 'pairs', got '{opts['camera_variance']}'")
+        # The effort balance's V_c from twin camera paths, the pixel positions held, where the
+        # positions are stratified and the balance steers something (docs/effort.md, "Twin
+        # camera paths"); else from consecutive passes.
+        self.held_camera = (self.sobol_pixels and opts["camera_variance"] == "twins"
+                            and (self.balanced or self.camera_paths_auto))
+        self.twins_now = False
+        self.twin_passes = 0
+        self.twin_pixels_unmatched = 0.0
+        self.effort = self._new_effort()      # measured either way (stats)
         self.alpha_factor = 1.0       # its factor on alpha for this pass
         self.fast_passes = 0          # and the passes it shrank faster
         depth = dscene.max_depth if settings.max_depth is None else settings.max_depth
@@ -147,6 +166,8 @@ class Sppm(Method):
         self.mp_valid = f.scalar(ti.i32, n)
         self.mp_radius = f.scalar(ti.f32, n)
         self.mp_direct = f.vector(3, ti.f64, n)        # the camera path's emission and direct light
+        self.mp_twin_direct = f.vector(3, ti.f64, n)   # its twin's (at the same pixel position)
+        self.mp_twin_matched = f.scalar(ti.i32, n)     # 1 where the twin reached the same MP
         # Per-pixel progressive statistics, float64.
         n = self.n_pixels
         self.R = f.scalar(ti.f64, n)
@@ -171,7 +192,15 @@ class Sppm(Method):
         self.spread = f.scalar(ti.f64, n)           # per pixel: (this estimate - the last one)^2
         self.half_difference = f.scalar(ti.f64, n)  # per pixel: n (t_a - t_b)^2 / 4
         self.deposits = f.scalar(ti.f64, n)         # per pixel: photons deposited into its MPs this pass
-        self.effort_sums = f.scalar(ti.f64, 10)     # their sums, and the pass's counted work
+        # Twin camera paths (docs/effort.md): per pixel, V_c with its position held from its last
+        # twin; 1 once a twin has reached another MP than its path (a delta choice: its V_c is
+        # then read from consecutive passes, every pass); this pass's V_c estimate; and 1
+        # where this pass's twin reached another MP.
+        self.camera_held = f.scalar(ti.f64, n)
+        self.camera_stochastic = f.scalar(ti.f64, n)
+        self.camera_estimate = f.scalar(ti.f64, n)
+        self.twin_unmatched = f.scalar(ti.f64, n)
+        self.effort_sums = f.scalar(ti.f64, 12)     # their sums, and the pass's counted work
         self.level_scale = f.scalar(ti.f64, self.n_acc)     # fixed point -> flux, per accumulator
         if self.uniform_accumulator:
             # Each accumulator's scale as an estimate by itself (level_scale holds them weighted),
@@ -208,7 +237,7 @@ class Sppm(Method):
 
     def _reset(self):
         fill_fields((f, 0) for f in (self.R, self.N, self.D, self.tau, self.Ld, self.M, self.phi, self.phi_odd,
-                                     self.counters, self.mp_valid))
+                                     self.counters, self.mp_valid, self.camera_held, self.camera_stochastic))
         if self.balanced_radius:
             fill_fields((f, 0) for f in (self.phi_inner, self.bias_sum, self.bias_sq, self.bias_passes))
         self.alpha_factor = 1.0       # balanced radius rule: this pass's factor on alpha
@@ -219,8 +248,18 @@ class Sppm(Method):
             self.camera_paths = 1
         if self.balanced:
             self.photons_per_iteration = self.n_pixels
+        self.twin_passes = 0
+        self.twin_pixels_unmatched = 0.0
         if self.effort is not None:
-            self.effort = EffortBalance(self.n_pixels, self.photons_per_iteration, self.alpha)
+            self.effort = self._new_effort()
+
+    def _new_effort(self) -> EffortBalance:
+        # With the positions held V_c's remaining spikes are camera error the film keeps (the
+        # caustic's rare paths to the lamp through glass, read at its stochastic pixels): the
+        # plain mean keeps them, where the trimmed one made the caustic 1.49x fixed photons'
+        # RMSE (docs/effort.md, "Twin camera paths").
+        return EffortBalance(self.n_pixels, self.photons_per_iteration, self.alpha, held_camera=self.held_camera,
+                             trim_camera=not self.held_camera)
 
     # -- the iteration -----------------------------------------------------------------
     def _iterate(self):
@@ -238,28 +277,47 @@ class Sppm(Method):
         k = self.camera_paths
         # MPs past this pass's are cleared up to the last pass's, which may have used more.
         in_use = max(k, self.camera_paths_last) * self.n_pixels
+        self.twins_now = self._twins_due(it)
         self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle,
-                          k, in_use, *self.pixel_passes.take(k))
+                          k, in_use, *self.pixel_passes.take(k), int(self.twins_now))
         self._init_radii(k)
         self.grid.build(self.mp_p, self.mp_radius, self.mp_valid, in_use)
         self.camera_paths_last = k
 
+    def _twins_due(self, it: int) -> bool:
+        """Whether pass `it` traces twin camera paths: where the effort balance steers something
+        and the pixel positions are stratified, in every pass of the first TWINS_FIRST after
+        the first (which has no last pass to set against) and in one of TWINS_EVERY after
+        that (docs/effort.md, "Twin camera paths")."""
+        if not (self.held_camera and self.effort is not None and it >= 1):
+            return False
+        return it <= TWINS_FIRST or it % TWINS_EVERY == 0
+
     def _update_balanced(self, n_p: int):
         """The progressive update, and the effort balance's view of this iteration."""
         k = self.camera_paths
-        self._update(self.alpha * self.alpha_factor, n_p, k)
+        effort = self.effort
+        held = self.held_camera and effort is not None and self.iterations >= 1
+        self._update(self.alpha * self.alpha_factor, n_p, k, int(held), int(self.twins_now),
+                     float(effort.last_photons or n_p) if held else float(n_p),
+                     int(effort.last_camera_paths or k) if held else k)
         if self.balanced_radius:
             self.alpha_factor = self._balance_radius()
             self.fast_passes += int(self.alpha_factor < 1.0)
         if self.effort is None:
             return
         self._effort_sums(self.relative_balance, self.iterations + 1, self.photons_emitted + n_p)
-        spread, half, radius_sq, valid, camera_rays, segments, deposits, *separate = self.effort_sums.to_numpy()
-        self._observe_uniform_weight(*separate)
+        sums = self.effort_sums.to_numpy()
+        spread, half, radius_sq, valid, camera_rays, segments, deposits = sums[:7]
+        self._observe_uniform_weight(*sums[7:10])
         n = float(self.n_pixels)
+        if self.twins_now:
+            self.twin_passes += 1
+            self.twin_pixels_unmatched += float(sums[11])
         self.effort.observe(n_p, spread / n, half / n, radius_sq / max(valid, 1.0),
                             camera_rays + k * n, segments, camera_paths=k,   # rays, and the grid over the MPs
-                            deposits=deposits)
+                            deposits=deposits,
+                            camera_held=float(sums[10]) / n if self.held_camera and self.iterations >= 1 else None)
         if self.balanced:
             self.photons_per_iteration = self.effort.next_photons()
         if self.camera_paths_auto:
@@ -270,7 +328,7 @@ class Sppm(Method):
 
     @ti.kernel
     def _camera_pass(self, seed: ti.u32, iteration: ti.u32, max_depth: ti.i32, r_abs: ti.f32, r_per_dist: ti.f32,
-                     camera_paths: ti.i32, in_use: ti.i32, first_point: ti.u32, replicate: ti.u32):
+                     camera_paths: ti.i32, in_use: ti.i32, first_point: ti.u32, replicate: ti.u32, twins: ti.i32):
         sc = self.dscene
         for j in range(in_use):
             self.mp_valid[j] = 0
@@ -283,7 +341,8 @@ class Sppm(Method):
                                                     first_point + ti.u32(j // self.n_pixels), replicate, ti.u32(0),
                                                     state)
                 o, d = sc.camera_ray(i % sc.width, i // sc.width, u1, u2)
-                acc = CameraPath(direct=vec3(0.0), pixel=j, r_abs=r_abs, r_per_dist=r_per_dist, rays=1)
+                acc = CameraPath(direct=vec3(0.0), pixel=j, r_abs=r_abs, r_per_dist=r_per_dist, rays=1, twin=0,
+                                 matched=0)
                 camera_walk(sc, o, d, state, max_depth, self, acc)
                 direct = acc.direct
                 if (direct == direct).all() and direct.max() < ti.math.inf:
@@ -291,6 +350,20 @@ class Sppm(Method):
                 else:
                     ti.atomic_add(self.counters[1], 1)
                 ti.atomic_add(self.counters[2], acc.rays)
+                if twins:
+                    # The same ray from the same pixel position, other random numbers; out of the
+                    # image and of the counted work (docs/effort.md, "Twin camera paths").
+                    twin_state = rng.seed(seed, ti.u32(j) ^ ti.u32(TWIN_BIT), iteration * ti.u32(2))
+                    twin = CameraPath(direct=vec3(0.0), pixel=j, r_abs=r_abs, r_per_dist=r_per_dist, rays=1, twin=1,
+                                      matched=1 - self.mp_valid[j])
+                    # the ray again: camera_walk advances the o and d it is handed
+                    o_twin, d_twin = sc.camera_ray(i % sc.width, i // sc.width, u1, u2)
+                    camera_walk(sc, o_twin, d_twin, twin_state, max_depth, self, twin)
+                    self.mp_twin_direct[j] = self.mp_direct[j]
+                    self.mp_twin_matched[j] = 0
+                    if (twin.direct == twin.direct).all() and twin.direct.max() < ti.math.inf:
+                        self.mp_twin_direct[j] = ti.cast(twin.direct, ti.f64)
+                        self.mp_twin_matched[j] = twin.matched
 
     @ti.kernel
     def _init_radii(self, camera_paths: ti.i32):
@@ -320,17 +393,25 @@ class Sppm(Method):
         i = acc.pixel           # the MP's index
         acc.direct += w.beta * next_event(self.dscene, s.p, s.ng, b, wo_l, n, t1, t2, state, False)
         acc.rays = w.length + 1           # the segments to here and the shadow ray
-        self.mp_p[i] = s.p
-        self.mp_n[i] = n
-        self.mp_wo[i] = wo
-        self.mp_W[i] = w.beta
-        self.mp_bsdf[i] = b
-        self.mp_depth[i] = w.length
-        self.mp_valid[i] = 1
-        r0 = acc.r_abs            # the initial radius, should this be the pixel's first MP (_init_radii)
-        if r0 <= 0.0:
-            r0 = acc.r_per_dist * w.travelled
-        self.mp_radius[i] = r0
+        if acc.twin:
+            # The same delta choices lead from the same ray to the same point (to the last
+            # bits: the walk compiled twice rounds differently): then the MP's photons are the
+            # path's too, and only the direct light differs.
+            if self.mp_valid[i] == 1 and self.mp_depth[i] == w.length:
+                if (ti.abs(s.p - self.mp_p[i])).max() <= 1e-5 * (1.0 + ti.abs(s.p).max()):
+                    acc.matched = 1
+        else:
+            self.mp_p[i] = s.p
+            self.mp_n[i] = n
+            self.mp_wo[i] = wo
+            self.mp_W[i] = w.beta
+            self.mp_bsdf[i] = b
+            self.mp_depth[i] = w.length
+            self.mp_valid[i] = 1
+            r0 = acc.r_abs            # the initial radius, should this be the pixel's first MP (_init_radii)
+            if r0 <= 0.0:
+                r0 = acc.r_per_dist * w.travelled
+            self.mp_radius[i] = r0
         return STOP
 
     @ti.func
@@ -406,7 +487,8 @@ class Sppm(Method):
         return ok
 
     @ti.kernel
-    def _update(self, alpha: ti.f64, n_p: ti.f64, camera_paths: ti.i32):
+    def _update(self, alpha: ti.f64, n_p: ti.f64, camera_paths: ti.i32, held: ti.i32, twins: ti.i32, n_last: ti.f64,
+                camera_paths_last: ti.i32):
         lum = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
         n = self.n_pixels
         k = ti.cast(camera_paths, ti.f64)
@@ -421,9 +503,14 @@ class Sppm(Method):
             w_phi_inner = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             # chains' and uniform photons' estimates apart, each at its own scale: even, odd
             w_sep = ti.Matrix([[0.0] * 3] * 4, ti.f64)
+            twin_difference = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            unmatched = 0
             for s in range(camera_paths):
                 j = s * n + i
                 ld += self.mp_direct[j]
+                if twins:
+                    twin_difference += self.mp_direct[j] - self.mp_twin_direct[j]
+                    unmatched += 1 - self.mp_twin_matched[j]
                 if self.mp_valid[j]:
                     valid += 1
                     m += ti.cast(self.M[j], ti.f64)
@@ -492,6 +579,25 @@ class Sppm(Method):
             self.estimate_last[i] = estimate
             halves = lum.dot(2.0 * (inc - inc_odd) / n_p) - lum.dot(2.0 * inc_odd / n_p)
             self.half_difference[i] = n_p * halves * halves / 4.0
+            if held:
+                # V_c per camera path with the pixel positions held (docs/effort.md, "Twin
+                # camera paths"). Where every twin reached its path's MP the two estimates
+                # share their photons, and the mean of K differences has variance 2 V_c / K.
+                # A pixel where a twin once reached another MP (a delta choice that went the
+                # other way: glass) is read from consecutive passes instead, every pass, its
+                # photons' part taken out: its rare paths (a lamp through glass) are camera
+                # error that the positions' stratification does not remove.
+                if twins:
+                    if unmatched == 0:
+                        self.camera_held[i] = lum.dot(twin_difference / k) ** 2 * k / 2.0
+                    else:
+                        self.camera_stochastic[i] = 1.0
+                    self.twin_unmatched[i] = ti.cast(unmatched > 0, ti.f64)
+                estimate_c = self.camera_held[i]
+                if self.camera_stochastic[i] > 0.0:
+                    photons_part = self.half_difference[i] * (1.0 / n_p + 1.0 / n_last)
+                    estimate_c = (self.spread[i] - photons_part) / (1.0 / k + 1.0 / ti.cast(camera_paths_last, ti.f64))
+                self.camera_estimate[i] = estimate_c
             if ti.static(self.uniform_accumulator):
                 self.half_chains[i] = chains
                 self.half_uniform[i] = uniform
@@ -547,7 +653,7 @@ class Sppm(Method):
         relative (--balance relmse): each pixel's terms weighted by 1 / (m^2 + eps), m its
         running estimate after `passes` passes of `photons` photons in all, eps = (0.1 x the
         image's mean m)^2 (converge's relMSE)."""
-        sums = ti.Vector([0.0] * 8, ti.f64)
+        sums = ti.Vector([0.0] * 10, ti.f64)
         lum = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
         eps = ti.f64(0.0)
         if ti.static(relative):
@@ -563,6 +669,8 @@ class Sppm(Method):
                 weight = 1.0 / (m * m + eps)
             sums[0] += weight * self.spread[i]
             sums[1] += weight * self.half_difference[i]
+            sums[8] += weight * self.camera_estimate[i]
+            sums[9] += self.twin_unmatched[i]
             sums[4] += self.deposits[i]
             if ti.static(self.uniform_accumulator):
                 c, u = self.half_chains[i], self.half_uniform[i]
@@ -580,6 +688,8 @@ class Sppm(Method):
         self.effort_sums[6] = sums[4]
         for k in ti.static(range(3)):
             self.effort_sums[7 + k] = sums[5 + k]     # chains, uniform photons, product
+        self.effort_sums[10] = sums[8]                # twins: V_c with positions held, pixels unmatched
+        self.effort_sums[11] = sums[9]
         self.counters[2] = 0
         self.counters[3] = 0
 
@@ -614,4 +724,8 @@ class Sppm(Method):
                 "radius_rule": self.options["radius_rule"],
                 **({"passes_shrunk_fast": self.fast_passes} if self.balanced_radius else {}),
                 "effort": {"balanced": self.balanced and self.effort is not None,
-                           **(self.effort.stats() if self.effort is not None else {})}}
+                           **(self.effort.stats() if self.effort is not None else {}),
+                           "camera_variance_from": "twins" if self.held_camera else "pairs",
+                           **({"twin_passes": self.twin_passes,
+                               "twin_pixels_unmatched_share": self.twin_pixels_unmatched
+                               / max(self.twin_passes * self.n_pixels, 1)} if self.held_camera else {})}}
