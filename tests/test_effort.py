@@ -302,9 +302,9 @@ def test_twins_take_the_pixel_positions_out_of_the_camera_variance():
 
 def test_guided_methods_keep_the_pairs_by_default():
     """visibility's and spatial-tf's K also sets how many measurement points their chains'
-    targets can reach; with twins K fell and gap-lit rooms lost 3-5 % (docs/effort.md), so
-    they read V_c from consecutive passes unless --camera-variance twins asks otherwise, and
-    then they trace twins."""
+    targets can reach; with twins K fell, and the passes lengthened (the held-out light bay
+    1.14x, the closet 0.89x; docs/effort.md), so they read V_c from consecutive passes unless
+    --camera-variance twins asks otherwise, and then they trace twins."""
     for options, expected in (({}, "pairs"), ({"camera_variance": "twins"}, "twins")):
         p = Job(scene=str(SCENES / "cornell-box" / "scene.xml"), params={"res": "16"}, method="visibility", seed=1,
                 options=options).prepare()

@@ -91,8 +91,9 @@ class GuidedPhotons(Sppm):
                "mutation": "joint", "warm_start": False, "ladder_burn_in": LADDER_BURN_IN,
                "uniform_weight": "auto",
                # The balance's K also sets how many measurement points the chains' targets can
-               # reach, so fewer points lengthen a pass; with twins K fell and gap-lit rooms
-               # lost 3-5 % (15 s, seeds 0-1; docs/effort.md, "Twin camera paths").
+               # reach, so fewer points lengthen a pass; with twins K fell, and the held-out light
+               # bay lost 14 % while the closet gained 11 % (15 s, seeds 0-3; docs/effort.md,
+               # "Twin camera paths").
                "camera_variance": "pairs"}
     # Every step's uniform photon is also an estimate of its own, sppm's (an accumulator after
     # the levels'), joined to the chains' with the least-variance weight beta; the chains'
