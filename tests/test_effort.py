@@ -316,3 +316,37 @@ def test_guided_methods_keep_the_pairs_by_default():
             assert effort.get("twin_passes", 0) == (2 if expected == "twins" else 0)
         finally:
             p.release()
+
+
+def test_film_variance_follows_the_twins_model():
+    """The model behind the twins' V_c (docs/effort.md, "Twin camera paths"): under stratified
+    positions the film's variance over seeds after M passes is V_held / M + c V_pos M^-1.5
+    with c near 1 (V_held the twins' V_c, V_pos the consecutive passes' less the twins'), far
+    below the V_pos / M that the pairs' V_c alone implies. Cornell box at 16x16, radii held,
+    8 seeds (tools/position_variance.py does the same at any size): c = 1.08 at M = 8 and 0.86
+    at M = 32."""
+    import numpy as np
+    luminance = np.array([0.2126, 0.7152, 0.0722])
+    marks, films, held, pairs = (8, 32), {8: [], 32: []}, [], []
+    for seed in range(8):
+        p = _sppm_cornell({"photons": 4096, "alpha": 0.999}, seed)
+        m = p.method
+        try:
+            m.held_camera = True              # twins although nothing steers by them
+            m.effort = m._new_effort()
+            for it in range(1, marks[-1] + 1):
+                m.iterate()
+                if it in films:
+                    films[it].append(m.image() @ luminance)
+            held.append(m.effort.camera_sum / m.effort.samples)
+            pairs.append(m.effort.pair_sum / m.effort.pair_samples)
+        finally:
+            p.release()
+    v_held, v_pos = np.mean(held), np.mean(pairs) - np.mean(held)
+    assert v_pos > 20 * v_held                # the positions dominate the pairs here
+    for mark in marks:
+        film = np.var(np.array(films[mark]), axis=0, ddof=1).mean()
+        c = (film - v_held / mark) / (v_pos * mark ** -1.5)
+        print(f"M = {mark}: film variance {film:.4g}, c = {c:.3g}, pairs' model {v_pos / mark:.4g}")
+        assert 0.5 < c < 2.0
+        assert film < 0.4 * v_pos / mark
