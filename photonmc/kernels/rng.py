@@ -5,6 +5,10 @@ item hashes (seed, stream, index) into a 32-bit state and steps a PCG-RXS-M-XS g
 """
 import taichi as ti
 
+# A twin's index (docs/mbe.md, "Twin vcm passes"; docs/effort.md, "Twin camera paths"): the
+# index of the pass or path it repeats with this bit flipped, which no pass or path has.
+TWIN_BIT = 1 << 30
+
 
 @ti.func
 def hash_u32(x: ti.u32) -> ti.u32:

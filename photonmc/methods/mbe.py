@@ -57,7 +57,7 @@ import taichi as ti
 
 from .. import runtime
 from ..errors import SettingsError
-from ..kernels import pixel_samples, vcm_techniques
+from ..kernels import pixel_samples, rng, vcm_techniques
 from ..kernels.camera_walk import CONTINUE
 from ..kernels.batch import download_fields, fill_fields
 from ..kernels.fields import FieldGroup
@@ -93,7 +93,6 @@ from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 from ..taichi_frontend import data_oriented
 
 PASS_KINDS = ("chain", "vcm", "exploring_vcm")     # the kinds of pass _iterate makes
-TWIN_INDEX_BIT = 1 << 30      # a twin pass's random-number index: the pass's with this bit flipped
 
 LEVELS = ("visibility", "contribution")
 
@@ -443,7 +442,7 @@ class Mbe(Vcm):
             # (an index no pass uses), out of the film. The next pass's pair estimate for the
             # light-path balance is then read against the twin, whose positions are as
             # independent of that pass's as this pass's are.
-            twin = v.vcm_pass(it ^ TWIN_INDEX_BIT, self.camera_paths_traced, n_light, False, points,
+            twin = v.vcm_pass(it ^ rng.TWIN_BIT, self.camera_paths_traced, n_light, False, points,
                               pixel_samples.VCM_PASS_STREAM)
             self.twins.observe(twin[0], self.n_pixels)
             self.pass_choice.count_twin(self.effort, self.camera_paths, self.steps_last, n_light)

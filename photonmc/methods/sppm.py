@@ -51,8 +51,7 @@ ALPHA_FAST = 0.5                  # --radius-rule balanced: alpha's factor while
 BIAS_MIN_PASSES = 16              # and the passes a pixel's bias is measured over before it counts,
 BIAS_Z = 3.0                      # and by how many of its standard errors the bias must dominate
 # Twin camera paths (docs/effort.md, "Twin camera paths"): a twin's random numbers are its
-# path's index with this bit set, an index no camera path has (at most MP_BUDGET of them).
-TWIN_BIT = 1 << 30
+# path's index with rng.TWIN_BIT set (there are at most MP_BUDGET camera paths).
 TWINS_FIRST = 16                  # every pass of the first this many has twins,
 TWINS_EVERY = 8                   # and one pass in this many after that
 # One camera path's accumulators: direct light so far, its pixel, the initial-radius rule;
@@ -353,7 +352,7 @@ class Sppm(Method):
                 if twins:
                     # The same ray from the same pixel position, other random numbers; out of the
                     # image and of the counted work (docs/effort.md, "Twin camera paths").
-                    twin_state = rng.seed(seed, ti.u32(j) ^ ti.u32(TWIN_BIT), iteration * ti.u32(2))
+                    twin_state = rng.seed(seed, ti.u32(j) ^ ti.u32(rng.TWIN_BIT), iteration * ti.u32(2))
                     twin = CameraPath(direct=vec3(0.0), pixel=j, r_abs=r_abs, r_per_dist=r_per_dist, rays=1, twin=1,
                                       matched=1 - self.mp_valid[j])
                     # the ray again: camera_walk advances the o and d it is handed
