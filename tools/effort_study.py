@@ -56,7 +56,10 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "strip-lights": ("../tools/heldout/strip-lights.xml", "../../tools/heldout/strip-lights-64.exr",
                            {"res": "64"}),
           # Held out from stop 47's defaults (made after their measurements).
-          "balustrade": ("../tools/heldout/balustrade.xml", "../../tools/heldout/balustrade-64.exr", {"res": "64"})}
+          "balustrade": ("../tools/heldout/balustrade.xml", "../../tools/heldout/balustrade-64.exr", {"res": "64"}),
+          # Held out from sppm's twin camera paths (stop 50).
+          "kitchen-counter": ("../tools/heldout/kitchen-counter.xml", "../../tools/heldout/kitchen-counter-64.exr",
+                              {"res": "64"})}
 
 
 def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):
