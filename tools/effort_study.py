@@ -59,7 +59,14 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "balustrade": ("../tools/heldout/balustrade.xml", "../../tools/heldout/balustrade-64.exr", {"res": "64"}),
           # Held out from sppm's twin camera paths (stop 50).
           "kitchen-counter": ("../tools/heldout/kitchen-counter.xml", "../../tools/heldout/kitchen-counter-64.exr",
-                              {"res": "64"})}
+                              {"res": "64"}),
+          # Held out from vcm's light-path balance's significance rule (stop 51).
+          "caustic-corner": ("../tools/heldout/caustic-corner.xml", "../../tools/heldout/caustic-corner-64.exr",
+                             {"res": "64"}),
+          # Rooms of mbe's suite (tools/mbe_suite.sh), for A/B runs of vcm's and mbe's options.
+          "slit-cabinet": ("../tools/heldout/slit-cabinet.xml", "../../tools/heldout/slit-cabinet-64.exr",
+                           {"res": "64"}),
+          "glass-table": ("../tools/heldout/glass-table.xml", "../../tools/heldout/glass-table-64.exr", {"res": "64"})}
 
 
 def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):

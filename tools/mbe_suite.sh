@@ -28,7 +28,7 @@ run light-gap-closeup scenes/light-gap/scene.xml tests/refs/light-gap-closeup-64
 run attic-slit scenes/attic-slit/scene.xml tests/refs/attic-slit-64.exr -D res=64
 for room in closet-door mirror-glass-room reading-nook glass-counter cellar-hatch slit-cabinet uplight-room \
             doorway glass-block-wall corner-room light-shaft loft-hatch light-bay ceiling-slot side-slot slab-gap \
-            strip-lights balustrade neon-corridor; do
+            strip-lights balustrade neon-corridor caustic-corner; do
     held "$room"
 done
 python "$(dirname "$0")/converge_summary.py" "$OUT" | tee "$OUT/summary.md"
