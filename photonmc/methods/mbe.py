@@ -172,6 +172,7 @@ class Mbe(Vcm):
     work_unit = "paths"
     default_iterations = 64
     balances_light_paths = False        # --light-paths: chain steps per pass
+    measures_merging_bias = False       # its camera side merges nothing (its vcm passes' Vcm measures)
     independent_iterations = False      # the chains carry their states and mutation sizes on
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
                "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
