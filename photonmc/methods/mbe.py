@@ -972,7 +972,10 @@ class Mbe(Vcm):
         n_v = self.independent.film.film.samples_per_pixel if self.independent is not None else 0
         return {"chain_passes": n_c, "vcm_passes": n_v, "chain_weight": self.film_weights()[0],
                 "chain_weight_by_count": count_weights(n_c, n_v)[0],
-                "log_vcm_over_chain_variance_shrunk": self._film_log_ratio(), "weights": self.options["film_weights"]}
+                "log_vcm_over_chain_variance_shrunk": self._film_log_ratio(), "weights": self.options["film_weights"],
+                # the vcm passes' merging bias (docs/vcm.md, "Merging's bias, estimated"); the
+                # chain passes merge on the light side and are not measured
+                "vcm_passes_merging_bias": self.independent.merging_bias() if self.independent is not None else None}
 
     def progress_fields(self) -> str:
         t = self.totals

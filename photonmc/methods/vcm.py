@@ -241,7 +241,9 @@ class Vcm(Method):
                                      1.0 / (PI * self.radius ** 2 * n_light), int(keep), point, replicate, stream)
         if keep:
             self.film.count_flushed()
-            self.bias_passes += int(self.bias_measured)
+        # Every pass adds to the bias sums, those that only measure too (mbe's exploring and
+        # twin vcm passes): each is a pass at its radius, like the film's.
+        self.bias_passes += int(self.bias_measured)
         return measured
 
     def _index_serial(self, n_paths: int) -> tuple[bool, bool]:
