@@ -48,7 +48,7 @@ MAX_STORE_BYTES = 8 << 30        # refuse (a clear error) rather than fail to al
 PI = math.pi
 # One camera subpath's accumulators and the iteration's settings it needs at its vertices.
 # work: its non-delta vertices, connection attempts, merge candidates (the light-path balance's cost).
-# merged_inner: merging with the inner half of the disc's area only (MergingBias below).
+# merged_inner: merging with the inner half of the disc's area only (Vcm.merging_bias).
 CameraSubpath = ti.types.struct(L=vec3, merged=ti.types.vector(3, ti.i64), merged_inner=ti.types.vector(3, ti.i64),
                                 m=vcm_mis.SubpathMis, subpath=ti.i32, max_depth=ti.i32, vm_normalization=ti.f32,
                                 work=ti.types.vector(3, ti.i32))
@@ -122,7 +122,7 @@ class Vcm(Method):
         self.row_spread = f.scalar(ti.f64, h)
         self.pass_light_paths = f.scalar(ti.i32, ())  # this pass's light subpaths (the pairing's modulus)
         # Per pixel, over the passes: the sum of D (merging over the whole disc less merging over
-        # its inner half, luminance) and of D^2 (MergingBias).
+        # its inner half, luminance) and of D^2 (merging_bias()).
         self.bias_measured = self.use_vm and self.measures_merging_bias
         self.merge_difference = f.vector(2, ti.f64, self.n_pixels if self.bias_measured else 1)
         self.bias_passes = 0
@@ -517,7 +517,7 @@ class Vcm(Method):
         """Merging (photon mapping at every non-delta camera vertex) with the light vertices
         within the radius, in fixed point: the sum does not depend on the grid's order. Also
         the same merging over the inner half of the disc's area (r^2 / 2, twice the weight:
-        the kernel normalised to that disc), for MergingBias."""
+        the kernel normalised to that disc), for merging_bias()."""
         total = ti.Vector([0, 0, 0], ti.i64)
         inner = ti.Vector([0, 0, 0], ti.i64)
         candidates = 0
