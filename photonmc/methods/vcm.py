@@ -33,6 +33,7 @@ from ..kernels.photon import MAX_PHOTON_SEGMENTS, photon_segments, trace_photon
 from ..kernels.sampling import to_local, vec3
 from ..kernels.subpath_store import BYTES_PER_STORED_VERTEX, SubpathVertices
 from ..kernels.vcm_mis import MisConstants, PathVertex
+from ..metrics import mean_luminance
 from ..kernels import vcm_techniques
 from .base import Method
 from .light_balance import LightPathBalance
@@ -590,7 +591,7 @@ class Vcm(Method):
         # positive half of each pixel's noise (13 % of the image where there is no bias, in the
         # sphere furnace after 64 passes).
         bias_sq = 4.0 * max(float(np.mean(mean * mean - noise)), 0.0)
-        image_mean = float(np.mean(self.film.mean() @ np.array([0.2126, 0.7152, 0.0722])))
+        image_mean = mean_luminance(self.film.mean())
         return {"rmse_estimate": math.sqrt(bias_sq),
                 "mean_relative": float(2.0 * np.mean(mean) / image_mean) if image_mean > 0 else None,
                 "passes": n}
