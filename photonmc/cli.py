@@ -116,9 +116,10 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
     pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
                                                  "(default: 2 pixel footprints at each pixel's first hit)")
     pm.add_argument("--radius-rule", choices=["progressive", "balanced"],
-                    help="progressive (default): every pixel's radius shrinks by alpha's rule; balanced: "
-                         "every radius shrinks faster while the image's radius bias, measured against discs "
-                         "of half the area, outweighs its noise (an option, measured in docs/guiding.md)")
+                    help="progressive: the radius shrinks by alpha's rule; balanced: it shrinks faster while "
+                         "the image's radius bias, measured against discs of half the area, outweighs its "
+                         "noise (the default of vcm and mbe, docs/vcm.md; an option of the photon methods, "
+                         "docs/guiding.md)")
     _add_guiding_options(r)
     _add_vcm_options(r)
     d = r.add_argument_group("several processes or machines (needs photonmc[distributed], i.e. Ray)")

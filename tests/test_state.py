@@ -114,6 +114,27 @@ def test_resume_of_vcm_with_balanced_light_paths_equals_straight(tmp_path):
     p.release()
 
 
+def test_resume_of_vcm_with_the_balanced_radius_equals_straight(tmp_path):
+    """The balanced radius (methods/merge_radius.py): its schedule and the sums of r^2 behind
+    its decisions are part of the state, so a render saved after the rule has taken fast steps
+    resumes to the same radii and the same image (merging alone from a wide radius, where the
+    bias dominates: tests/test_vcm.py)."""
+    j = Job(scene=CORNELL, params=SMALL, method="vcm", seed=3,
+            options={"techniques": "bpm", "radius": 0.3, "light_paths": 1024})
+    half = 40
+    straight = rendered(j, 2 * half)
+    [saved] = state.load(state.save(tmp_path / "radius.state", [rendered(j, half)]))
+    assert saved.plain["radius_schedule.fast_steps"] > 0
+    p, _ = resume(saved)
+    for _ in range(half):
+        p.method.iterate()
+    assert p.method.radius_schedule.fast_steps == straight.plain["radius_schedule.fast_steps"] > \
+        saved.plain["radius_schedule.fast_steps"]
+    assert p.method.radius == straight.plain["radius"]
+    assert np.array_equal(p.method.image(), straight.image)
+    p.release()
+
+
 def test_resume_across_mbe_vcm_passes_equals_straight(tmp_path):
     """mbe's vcm passes (methods/pass_choice.py) render into its film with a Vcm of their own:
     its fields and the choice's sums are part of the state, so a render saved while vcm passes
@@ -280,13 +301,18 @@ def test_merge_of_pt_renders_is_their_sample_average_and_error_falls_as_one_over
 
 
 def test_interleaved_vcm_slices_merge_into_the_single_render():
-    """vcm's radius depends on the iteration index alone, so the iterations 0, 2, 4 and 1, 3, 5
-    rendered apart merge into the 6-iteration render, bias and all; sppm refuses slices."""
-    halves = [rendered(job("vcm", iteration_slice=(k, 2)), 3) for k in range(2)]
-    single = rendered(job("vcm"), 6).image
+    """With a fixed --light-paths and the progressive radius, vcm's radius depends on the
+    iteration index alone, so the iterations 0, 2, 4 and 1, 3, 5 rendered apart merge into the
+    6-iteration render, bias and all; sppm refuses slices, and so does vcm's default radius
+    rule, whose radius follows the bias measured before each pass."""
+    progressive = {**OPTIONS["vcm"], "radius_rule": "progressive"}
+    halves = [rendered(Job(scene=CORNELL, params=SMALL, method="vcm", seed=3, options=progressive,
+                           iteration_slice=(k, 2)), 3) for k in range(2)]
+    single = rendered(Job(scene=CORNELL, params=SMALL, method="vcm", seed=3, options=progressive), 6).image
     assert np.allclose(merged_image(halves), single, rtol=1e-12, atol=1e-15)
-    with pytest.raises(PhotonmcError, match="cannot render interleaved slices"):
-        job("sppm", iteration_slice=(0, 2)).prepare()
+    for method in ("sppm", "vcm"):
+        with pytest.raises(PhotonmcError, match="cannot render interleaved slices"):
+            job(method, iteration_slice=(0, 2)).prepare()
 
 
 def test_merge_refuses_renders_that_are_not_independent_or_not_alike():

@@ -175,7 +175,7 @@ class Mbe(Vcm):
     measures_merging_bias = False       # its camera side merges nothing (its vcm passes' Vcm measures)
     independent_iterations = False      # the chains carry their states and mutation sizes on
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
-               "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
+               "radius_rule": "balanced", "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
                "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True,
                "balance": "mse", "uniform_weight": "auto", "vcm_passes": "measured", "film_weights": "variance",
                "pixel_samples": "sobol"}
@@ -269,6 +269,10 @@ class Mbe(Vcm):
                 "light_paths": self.n_light, "alpha": self.alpha, "radius": opts["radius"],
                 "radius_pixels": opts["radius_pixels"], "measure_passes": True,
                 "pixel_samples": opts["pixel_samples"]}))
+            # One radius schedule for both kinds of pass, indexed by this method's camera subpaths
+            # per pixel; the balanced rule reads the bias from the vcm passes' film, the only one
+            # that measures it (the chain passes merge on the light side).
+            self.independent.radius_schedule = self.radius_schedule
         self._reset_chains()
 
     @staticmethod
@@ -320,8 +324,7 @@ class Mbe(Vcm):
         super()._reset()
         self.pool.reset()
         if self.independent is not None:
-            self.independent.counters.fill(0)
-            self.independent.film.reset()
+            self.independent.reset()          # its film, counters and merging-bias sums; the schedule is this one's
         self._reset_chains()
 
     def _reset_chains(self):
@@ -397,6 +400,8 @@ class Mbe(Vcm):
         it = self.iteration_index
         start = time.perf_counter()
         kind = self._iterate_kind(it)
+        if self.independent is not None:
+            self.independent.balance_radius(self.camera_paths_traced, self.radius_schedule)
         # Wall time per kind of pass: statistics only (the choice counts work, not time, so
         # that a seed gives one image), to set the cost model against what the passes took.
         self.seconds_by_kind[PASS_KINDS.index(kind)] += time.perf_counter() - start
@@ -1023,6 +1028,7 @@ class Mbe(Vcm):
             "chains": self.n_chains,
             "mis": "modified" if self.modified_mis else "plain",
             "radius": self.radius, "initial_radius": self.r1, "alpha": self.alpha,
+            "radius_schedule": self.radius_schedule.stats(),
             "uniform_visible_fraction": float(t[0, UNIFORM_VISIBLE]) / max(int(t[0, UNIFORM]), 1),
             "swap_acceptance": (float(t[0, SWAPS_ACCEPTED]) / t[0, SWAPS_TRIED] if t[0, SWAPS_TRIED] else None),
             "levels": levels,

@@ -37,6 +37,8 @@ from ..metrics import mean_luminance
 from ..kernels import vcm_techniques
 from .base import Method
 from .light_balance import LightPathBalance
+from . import merge_radius
+from .merge_radius import MergeRadius
 from .sppm import _HashSource
 from ..taichi_frontend import data_oriented
 
@@ -63,7 +65,7 @@ class Vcm(Method):
     independent_iterations = True     # the radius is r_1 i^((alpha-1)/2) of the index i alone (fixed --light-paths)
     balances_light_paths = True       # --light-paths auto (the default); mbe's --light-paths are chain steps
     OPTIONS = {"light_paths": None, "alpha": 0.75, "radius": None, "radius_pixels": DEFAULT_RADIUS_PIXELS,
-               "techniques": "vcm", "light_vertex_capacity": None, "measure_passes": False, "pixel_samples": "sobol"}
+               "radius_rule": "balanced", "techniques": "vcm", "light_vertex_capacity": None, "measure_passes": False, "pixel_samples": "sobol"}
     # The light vertices and their grid live for one iteration (state.py does not save them).
     TRANSIENT = ("store", "grid")
     # What trace_photon hands this visitor: every non-delta vertex, with the MIS partial sums.
@@ -113,6 +115,13 @@ class Vcm(Method):
         self.pixel_angle = 2.0 * dscene.tan_y / h
         self.r1 = None if opts["radius"] is None else float(opts["radius"])
         self.radius = 0.0
+        if opts["radius_rule"] not in merge_radius.RULES:
+            raise SettingsError(f"--radius-rule must be one of {', '.join(merge_radius.RULES)}, got "
+                                f"'{opts['radius_rule']}'")
+        # The schedule of r_i (methods/merge_radius.py); mbe hands its own to its vcm passes.
+        self.radius_schedule = MergeRadius(self.alpha, opts["radius_rule"] if self.use_vm else "progressive")
+        if self.radius_schedule.balanced:
+            self.independent_iterations = False      # each pass's radius follows the bias measured before it
 
         f = FieldGroup(self.name)
         self.consts = f.vector(5, ti.f32, ())        # MisConstants of this iteration, then r^2
@@ -127,6 +136,8 @@ class Vcm(Method):
         self.bias_measured = self.use_vm and self.measures_merging_bias
         self.merge_difference = f.vector(2, ti.f64, self.n_pixels if self.bias_measured else 1)
         self.bias_passes = 0
+        self.bias_radius_sq_sum = 0.0            # r^2 and r^-2 summed over those passes (the balanced radius)
+        self.bias_inverse_radius_sq_sum = 0.0
         f.finalize()
         self.fields = f
         radiance = dscene.scene.emitter_radiance
@@ -141,8 +152,14 @@ class Vcm(Method):
 
     @classmethod
     def iterations_independent(cls, options: dict) -> bool:
-        return super().iterations_independent(options) and not (
-            cls.balances_light_paths and options.get("light_paths") in (None, "auto"))
+        balanced_light = cls.balances_light_paths and options.get("light_paths") in (None, "auto")
+        # The balanced radius follows the bias measured before each pass, where there is merging
+        # and the radius shrinks at all.
+        rule = options.get("radius_rule") or cls.OPTIONS["radius_rule"]
+        alpha = float(options.get("alpha") or cls.OPTIONS["alpha"])
+        merges = TECHNIQUES.get(options.get("techniques") or "vcm", (False, True, False))[1]
+        balanced_radius = rule == "balanced" and merges and alpha < 1.0
+        return super().iterations_independent(options) and not (balanced_light or balanced_radius)
 
     def _stored_paths(self) -> int:
         """Subpaths whose vertices the iteration stores: the light subpaths."""
@@ -171,12 +188,15 @@ class Vcm(Method):
         self.counters.fill(0)
         self.merge_difference.fill(0)
         self.bias_passes = 0
+        self.bias_radius_sq_sum = self.bias_inverse_radius_sq_sum = 0.0
+        self.radius_schedule.reset()
         if self.balance is not None:
             self.balance = LightPathBalance(self.n_pixels)
 
     # -- the iteration -----------------------------------------------------------------
     def _radius_at(self, iteration: int) -> float:
-        """r_i = r_1 i^((alpha-1)/2), i counted from 1 (Knaus & Zwicker 2011; VCM sec. 5)."""
+        """r_i = r_1 i^((alpha-1)/2), i counted from 1 (Knaus & Zwicker 2011; VCM sec. 5), or the
+        balanced rule's schedule (methods/merge_radius.py)."""
         if self.r1 is None:
             self._first_hits()
             t = self.first_hit.to_numpy()
@@ -184,12 +204,29 @@ class Vcm(Method):
             extent = self.dscene.extent
             median = float(np.median(t)) if len(t) else extent
             self.r1 = max(float(self.options["radius_pixels"]) * self.pixel_angle * median, 1e-7 * extent)
-        return self.r1 * (iteration + 1) ** ((self.alpha - 1.0) / 2.0)
+        return self.r1 * self.radius_schedule.scale(iteration)
+
+    def balance_radius(self, next_index: int, schedule: MergeRadius | None = None) -> None:
+        """The balanced rule's step after a pass (methods/merge_radius.py): from this film's
+        merging bias and variance, whether the schedule's steps from `next_index` (the next
+        pass's radius index) shrink faster. mbe passes the schedule its passes share."""
+        schedule = self.radius_schedule if schedule is None else schedule
+        if not schedule.balanced:
+            return
+        n = self.bias_passes
+        fast = False
+        if self.bias_measured and n >= 2:
+            bias_sq, variance, spread, _ = self._bias_sums(float(n)).to_numpy()
+            fast = MergeRadius.bias_dominates(bias_sq, variance, spread, n,
+                                              (self.r1 * schedule.scale(next_index)) ** 2,
+                                              self.bias_radius_sq_sum / n, self.bias_inverse_radius_sq_sum / n)
+        schedule.advance(next_index, fast)
 
     def _iterate(self):
         if self.balance is None:
             self.vcm_pass(self.iteration_index, self.iteration_index)
             self.work_done += self.n_light + self.n_pixels
+            self.balance_radius(self.iteration_index + 1)
             return
         n = self.balance.next_light_paths()
         spread, segments, vertices, connections, merges = self.vcm_pass(self.iteration_index, self.iteration_index, n)
@@ -197,6 +234,7 @@ class Vcm(Method):
         work = LightPathBalance.work(self.n_pixels, vertices, connections, segments, light_rays, merges)
         self.balance.observe(n, spread, self.n_pixels, work)
         self.work_done += n + self.n_pixels
+        self.balance_radius(self.iteration_index + 1)
 
     def vcm_pass(self, it: int, radius_index: int, n_light: int | None = None, keep: bool = True,
                  pixel_points: tuple[int, int] | None = None, stream: int = 0):
@@ -244,7 +282,10 @@ class Vcm(Method):
             self.film.count_flushed()
         # Every pass adds to the bias sums, those that only measure too (mbe's exploring and
         # twin vcm passes): each is a pass at its radius, like the film's.
-        self.bias_passes += int(self.bias_measured)
+        if self.bias_measured:
+            self.bias_passes += 1
+            self.bias_radius_sq_sum += self.radius ** 2
+            self.bias_inverse_radius_sq_sum += 1.0 / self.radius ** 2
         return measured
 
     def _index_serial(self, n_paths: int) -> tuple[bool, bool]:
@@ -570,7 +611,7 @@ class Vcm(Method):
                 "light_vertex_capacity": self.store.capacity if self.store is not None else 0,
                 "light_vertex_store_grown": self.store_grown,
                 "nonfinite_samples_dropped": self.film.dropped(),
-                "merging_bias": self.merging_bias()}
+                "merging_bias": self.merging_bias(), "radius_schedule": self.radius_schedule.stats()}
 
     def merging_bias(self) -> dict | None:
         """The film's bias from merging, estimated from the passes so far (docs/vcm.md,
@@ -584,14 +625,32 @@ class Vcm(Method):
         if not self.bias_measured or self.bias_passes < 2:
             return None
         n = self.bias_passes
-        d = self.merge_difference.to_numpy()
-        mean = d[:, 0] / n
-        noise = np.maximum(d[:, 1] / n - mean * mean, 0.0) * n / (n - 1) / n
-        # Clamped after the mean over pixels, not per pixel: per pixel the clamp would keep the
+        bias_sq, _, _, mean_sum = self._bias_sums(float(n)).to_numpy()
+        # Clamped after the sum over pixels, not per pixel: per pixel the clamp would keep the
         # positive half of each pixel's noise (13 % of the image where there is no bias, in the
         # sphere furnace after 64 passes).
-        bias_sq = 4.0 * max(float(np.mean(mean * mean - noise)), 0.0)
+        bias_sq = max(float(bias_sq), 0.0) / self.n_pixels
         image_mean = mean_luminance(self.film.mean())
         return {"rmse_estimate": math.sqrt(bias_sq),
-                "mean_relative": float(2.0 * np.mean(mean) / image_mean) if image_mean > 0 else None,
+                "mean_relative": float(2.0 * mean_sum / self.n_pixels / image_mean) if image_mean > 0 else None,
                 "passes": n}
+
+    @ti.kernel
+    def _bias_sums(self, n: ti.f64) -> ti.types.vector(4, ti.f64):
+        """Over pixels, from the sums of D and D^2 over n passes (merging_bias): the squared
+        bias 4 (mean^2 - se^2) (noise removed, not clamped), the merging variance of the
+        film se^2 (D's variance is that of the pixel's merging estimate: the inner disc's light
+        vertices are in both), the variance of the first sum where there is no bias (32 se^4
+        per pixel), and the sum of the means. A serial loop: one summation order, so the
+        balanced radius, and the image, do not depend on the threads."""
+        bias_sq, variance, spread, mean_sum = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
+        ti.loop_config(serialize=True)
+        for i in range(self.merge_difference.shape[0]):
+            d = self.merge_difference[i]
+            mean = d[0] / n
+            se_sq = ti.max(d[1] / n - mean * mean, 0.0) / (n - 1.0)
+            bias_sq += 4.0 * (mean * mean - se_sq)
+            variance += se_sq
+            spread += 32.0 * se_sq * se_sq
+            mean_sum += mean
+        return ti.Vector([bias_sq, variance, spread, mean_sum])
