@@ -63,6 +63,9 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           # Held out from vcm's light-path balance's significance rule (stop 51).
           "caustic-corner": ("../tools/heldout/caustic-corner.xml", "../../tools/heldout/caustic-corner-64.exr",
                              {"res": "64"}),
+          # Held out from the balanced merging radius (stop 52).
+          "slatted-lamp": ("../tools/heldout/slatted-lamp.xml", "../../tools/heldout/slatted-lamp-64.exr",
+                           {"res": "64"}),
           # Rooms of mbe's suite (tools/mbe_suite.sh), for A/B runs of vcm's and mbe's options.
           "slit-cabinet": ("../tools/heldout/slit-cabinet.xml", "../../tools/heldout/slit-cabinet-64.exr",
                            {"res": "64"}),
