@@ -42,9 +42,14 @@ def init(arch: str = "cpu", threads: int | None = None, debug: bool = False, ker
     # 41 s -> 16 s, and no iteration slower, since LLVM's own passes do the same work on the
     # generated code. Images differ from those of the passes in the last float bits only
     # (tests/test_compile_settings.py; docs/performance.md, "Compile time").
+    # fast_math off: with it LLVM may reorder or contract float operations differently
+    # depending on where a kernel's fields live, and pooled fields (kernels/fields.py) put the
+    # same render's fields in other trees after another scene's render: an mbe render then
+    # differed from the same seed's in the last bits (tests/test_mbe.py). Measured free:
+    # pt and vcm at 128² within 1 % per iteration (docs/performance.md, "Fast math").
     kwargs = dict(arch=getattr(ti, ARCHES[arch]), default_fp=ti.f32, default_ip=ti.i32,
                   log_level=ti.WARN, debug=debug, offline_cache=True, kernel_profiler=kernel_profiler,
-                  cfg_optimization=False)
+                  cfg_optimization=False, fast_math=False)
     if threads is not None and arch == "cpu":
         kwargs["cpu_max_num_threads"] = threads
     # Taichi's front end re-reads and re-formats the same source at every inlined call; the
