@@ -116,10 +116,9 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
     pm.add_argument("--radius", type=float, help="initial gather radius in scene units "
                                                  "(default: 2 pixel footprints at each pixel's first hit)")
     pm.add_argument("--radius-rule", choices=["progressive", "balanced"],
-                    help="progressive: the radius shrinks by alpha's rule; balanced: it shrinks faster while "
-                         "the image's radius bias, measured against discs of half the area, outweighs its "
-                         "noise (the default of vcm and mbe, docs/vcm.md; an option of the photon methods, "
-                         "docs/guiding.md)")
+                    help="progressive: the radius shrinks by alpha's rule; balanced (the default): it shrinks "
+                         "faster while the radius bias, measured against discs of half the area, outweighs "
+                         "what a smaller radius adds in noise (docs/vcm.md, docs/guiding.md)")
     _add_guiding_options(r)
     _add_vcm_options(r)
     d = r.add_argument_group("several processes or machines (needs photonmc[distributed], i.e. Ray)")

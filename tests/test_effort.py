@@ -117,7 +117,8 @@ def _estimates(params: dict, photons: int, iterations: int, seed: int, camera_pa
                pixel_samples: str = "independent"):
     # alpha near 1: the radii stay put, so V_p does not change with the photon count.
     job = Job(scene=str(SCENES / params.pop("scene") / "scene.xml"), params=params, method="sppm", seed=seed,
-              options={"photons": photons, "alpha": 0.999, "camera_paths": camera_paths,
+              options={"photons": photons, "alpha": 0.999, "radius_rule": "progressive",
+                       "camera_paths": camera_paths,
                        "pixel_samples": pixel_samples})
     return shares_after(job.prepare(), iterations)
 
@@ -329,7 +330,7 @@ def test_film_variance_follows_the_twins_model():
     luminance = np.array([0.2126, 0.7152, 0.0722])
     marks, films, held, pairs = (8, 32), {8: [], 32: []}, [], []
     for seed in range(8):
-        p = _sppm_cornell({"photons": 4096, "alpha": 0.999}, seed)
+        p = _sppm_cornell({"photons": 4096, "alpha": 0.999, "radius_rule": "progressive"}, seed)
         m = p.method
         try:
             m.held_camera = True              # twins although nothing steers by them

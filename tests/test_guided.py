@@ -74,7 +74,7 @@ def test_visibility_and_sppm_agree_where_photons_are_visible(write_scene):
     image: they must agree within noise, measured from the spread of 4x4 block means of the
     difference (the two renders are independent)."""
     scene = _open_box(write_scene)
-    opts = {"alpha": 0.999, "radius": 0.08, "photons": 8192}
+    opts = {"alpha": 0.999, "radius_rule": "progressive", "radius": 0.08, "photons": 8192}
     a = render(scene, "sppm", 150, seed=1, **opts)
     b = render(scene, "visibility", 150, seed=2, **opts)
     print("visible fraction", b.stats["uniform_visible_fraction"])
@@ -160,7 +160,7 @@ def test_one_chain_and_many_chains(write_scene, chains):
     so the comparison sees only the photons (measured +0.5/-0.1 % and +0.06/0.00 % for two seeds).
     One camera path per pixel for that (auto would choose more for visibility, docs/effort.md)."""
     scene = _open_box(write_scene, res=12)
-    opts = {"alpha": 0.999, "radius": 0.1, "camera_paths": 1}
+    opts = {"alpha": 0.999, "radius_rule": "progressive", "radius": 0.1, "camera_paths": 1}
     ref = render(scene, "sppm", 30, seed=4, photons=65536, **opts)
     r = render(scene, "visibility", 30, seed=4, chains=chains, photons=4096, **opts)
     assert r.stats["chains"] == chains and np.isfinite(r.image).all()

@@ -13,9 +13,9 @@ the film's squared error where
     2 B b r^2 > c / (n r^2),   i.e.   B^2 rho_b > V rho_v / 2,
 
 rho_b = r^2 / mean(r_i^2) and rho_v = r^-2 / mean(r_i^-2) over the passes measured. With one
-radius throughout this is sppm's balance (bias^2 = variance / 2, methods/sppm.py); the ratios
-keep the early passes' large radii, whose bias no later pass can undo, from driving the radius
-down for ever. Any sequence of alpha and alpha / 2 steps still sends r to 0 with sum r_i^-2 /
+radius throughout this is the balance bias^2 = variance / 2; the ratios keep the early passes'
+large radii, whose bias no later pass can undo, from driving the radius down for ever. The
+photon methods apply the same test with each pixel's own radius history (methods/sppm.py). Any sequence of alpha and alpha / 2 steps still sends r to 0 with sum r_i^-2 /
 n^2 -> 0, so merging stays consistent.
 
 Plain values only: the state is saved with the render (state.py).
@@ -82,9 +82,18 @@ class MergeRadius:
             return False
         rho_b = radius_sq / mean_radius_sq
         rho_v = (1.0 / radius_sq) / mean_inverse_radius_sq
-        return rho_b * (bias_sq - BIAS_Z * math.sqrt(max(spread, 0.0))) > 0.5 * variance * rho_v
+        return bias_outweighs_noise(rho_b * bias_sq, rho_v * variance, rho_b * rho_b * spread)
 
     def stats(self) -> dict:
         return {"rule": "balanced" if self.balanced else "progressive",
                 "fast_steps": self.fast_steps if self.balanced else 0,
                 "fast_decisions": self.fast_decisions, "decisions": self.decisions}
+
+
+def bias_outweighs_noise(bias_sq: float, variance: float, spread: float) -> bool:
+    """The balanced rule's test on sums already scaled to the next pass (rho_b bias^2,
+    rho_v variance, rho_b^2 x the variance of the bias^2 estimate): the bias term must exceed
+    half the variance term by BIAS_Z standard errors of its own estimate. Shared by vcm's
+    single radius and sppm's per-pixel radii (methods/sppm.py), which fold each pixel's own
+    ratios into the sums."""
+    return bias_sq - BIAS_Z * math.sqrt(max(spread, 0.0)) > 0.5 * variance

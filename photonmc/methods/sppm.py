@@ -41,15 +41,13 @@ from ..kernels.photon import MAX_PHOTON_SEGMENTS, NORMAL_COS_MIN, photon_segment
 from ..kernels.sampling import onb, to_local, vec3
 from .base import Method
 from .effort import EffortBalance
+from .merge_radius import ALPHA_FAST, BIAS_MIN_PASSES, bias_outweighs_noise
 from ..taichi_frontend import data_oriented
 
 FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flux
 PI = math.pi                      # use as ti.f64(PI): a bare literal is a float32 constant (default_fp)
 MP_BUDGET = 1 << 20               # measurement points that --camera-paths auto may allocate
 MAX_CAMERA_PATHS = 64             # and at most this many camera paths per pixel per pass
-ALPHA_FAST = 0.5                  # --radius-rule balanced: alpha's factor while the bias dominates
-BIAS_MIN_PASSES = 16              # and the passes a pixel's bias is measured over before it counts,
-BIAS_Z = 3.0                      # and by how many of its standard errors the bias must dominate
 # Twin camera paths (docs/effort.md, "Twin camera paths"): a twin's random numbers are its
 # path's index with rng.TWIN_BIT set (there are at most MP_BUDGET camera paths).
 TWINS_FIRST = 16                  # every pass of the first this many has twins,
@@ -76,7 +74,7 @@ class Sppm(Method):
     work_unit = "photons"
     default_iterations = 100
     OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False,
-               "camera_paths": None, "radius_rule": "progressive", "balance": "mse",
+               "camera_paths": None, "radius_rule": "balanced", "balance": "mse",
                "pixel_samples": "sobol", "camera_variance": "twins"}
     RADIUS_RULES = ("progressive", "balanced")
     default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
@@ -187,6 +185,9 @@ class Sppm(Method):
             self.bias_sum = f.scalar(ti.f64, n)
             self.bias_sq = f.scalar(ti.f64, n)
             self.bias_passes = f.scalar(ti.f64, n)
+            # and of the pixel's R^2 and R^-2 at those passes (the history's ratios)
+            self.bias_radius_sq = f.scalar(ti.f64, n)
+            self.bias_inverse_radius_sq = f.scalar(ti.f64, n)
         self.estimate_last = f.scalar(ti.f64, n)    # per pixel: the last iteration's own estimate
         self.spread = f.scalar(ti.f64, n)           # per pixel: (this estimate - the last one)^2
         self.half_difference = f.scalar(ti.f64, n)  # per pixel: n (t_a - t_b)^2 / 4
@@ -238,7 +239,8 @@ class Sppm(Method):
         fill_fields((f, 0) for f in (self.R, self.N, self.D, self.tau, self.Ld, self.M, self.phi, self.phi_odd,
                                      self.counters, self.mp_valid, self.camera_held, self.camera_stochastic))
         if self.balanced_radius:
-            fill_fields((f, 0) for f in (self.phi_inner, self.bias_sum, self.bias_sq, self.bias_passes))
+            fill_fields((f, 0) for f in (self.phi_inner, self.bias_sum, self.bias_sq, self.bias_passes,
+                                         self.bias_radius_sq, self.bias_inverse_radius_sq))
         self.alpha_factor = 1.0       # balanced radius rule: this pass's factor on alpha
         self.fast_passes = 0          # and the passes it shrank faster
         self.photons_emitted = 0
@@ -301,7 +303,8 @@ class Sppm(Method):
                      float(effort.last_photons or n_p) if held else float(n_p),
                      int(effort.last_camera_paths or k) if held else k)
         if self.balanced_radius:
-            self.alpha_factor = self._balance_radius()
+            sums = self._balance_radius_sums()
+            self.alpha_factor = ALPHA_FAST if bias_outweighs_noise(sums[0], sums[1], sums[2]) else 1.0
             self.fast_passes += int(self.alpha_factor < 1.0)
         if self.effort is None:
             return
@@ -613,37 +616,42 @@ class Sppm(Method):
         self.bias_sum[i] += d
         self.bias_sq[i] += d * d
         self.bias_passes[i] += 1.0
+        self.bias_radius_sq[i] += self.R[i] * self.R[i]
+        self.bias_inverse_radius_sq[i] += 1.0 / (self.R[i] * self.R[i])
 
     @ti.kernel
-    def _balance_radius(self) -> ti.f64:
-        """The balanced radius rule's choice for the next pass: ALPHA_FAST (every pixel's
-        radius shrinks with ALPHA_FAST x alpha) or 1.
+    def _balance_radius_sums(self) -> ti.types.vector(3, ti.f64):
+        """The balanced radius rule's sums over pixels (methods/merge_radius.py,
+        bias_outweighs_noise decides; docs/guiding.md, "The balanced radius with the history's
+        ratios").
 
-        Over pixels, sum(mean difference^2 - its squared standard error) estimates the image's
+        Per pixel, mean difference^2 - its squared standard error estimates the image's
         squared bias / 4 (bias ~ 2 x the difference where it goes as R^2, more near edges),
-        and sum(squared standard error) its photon variance. The MSE-optimal radius for a bias
-        linear in R^2 against a variance linear in 1 / R^2 has bias^2 = variance / 2, so where
-        the bias is larger, by BIAS_Z standard errors of its own estimate, the radii shrink
-        faster. Summing over the image, as the RMSE does, is what makes a bias visible that no
-        single pixel's noise lets through; the standard error (each pixel's term has variance
-        about 2 x 16 se^4 where it has no bias) keeps a few pixels' rare bright photons, which
-        dominate both sums where photons are scarce, from passing for bias. Any alpha
-        between the two keeps SPPM's consistency: the radius still goes to 0 and the photons
-        to infinity. A serial loop: a fixed summation order keeps the image deterministic."""
+        and the squared standard error its photon variance. The image averages every pass
+        (the D form), each at its own radius, so the next pass changes the bias by R^2 /
+        mean(R_t^2) of the image's and adds noise as R^-2 / mean(R_t^-2) of the image's
+        variance: rho_b and rho_v, each pixel's own, weigh its terms, and the early wide
+        passes' bias, which no later pass can undo, does not keep the rule firing (the
+        lesson of vcm's rule, docs/vcm.md). R here is the next pass's radius at this pass's
+        step. Summing over the image, as the RMSE does, lets a bias show that no single
+        pixel's noise lets through; the standard error (each pixel's term has variance about
+        2 x 16 se^4 where it has no bias) keeps a few pixels' rare bright photons from
+        passing for bias. A serial loop: a fixed summation order keeps the image
+        deterministic."""
         bias_sq, variance, spread = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
         ti.loop_config(serialize=True)
         for i in range(self.n_pixels):
             n = self.bias_passes[i]
-            if n >= BIAS_MIN_PASSES:
+            if n >= BIAS_MIN_PASSES and self.R[i] > 0.0:
                 mean = self.bias_sum[i] / n
                 se_sq = ti.max(self.bias_sq[i] / n - mean * mean, 0.0) / (n - 1.0)
-                bias_sq += 4.0 * (mean * mean - se_sq)
-                variance += se_sq
-                spread += 32.0 * se_sq * se_sq
-        factor = ti.f64(1.0)
-        if bias_sq - 0.5 * variance > BIAS_Z * ti.sqrt(spread):
-            factor = ALPHA_FAST
-        return factor
+                r_sq = self.R[i] * self.R[i]
+                rho_b = r_sq * n / self.bias_radius_sq[i]
+                rho_v = n / (r_sq * self.bias_inverse_radius_sq[i])
+                bias_sq += rho_b * 4.0 * (mean * mean - se_sq)
+                variance += rho_v * se_sq
+                spread += rho_b * rho_b * 32.0 * se_sq * se_sq
+        return ti.Vector([bias_sq, variance, spread], ti.f64)
 
     @ti.kernel
     def _effort_sums(self, relative: ti.template(), passes: ti.f64, photons: ti.f64):
