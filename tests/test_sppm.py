@@ -269,3 +269,42 @@ def test_balanced_radius_rule_shrinks_where_the_bias_dominates():
     assert fast["progressive"] is None
     assert fast["balanced"] >= 25
     assert radius["balanced"] < 0.95 * radius["progressive"]
+
+
+def test_balanced_radius_rule_weighs_each_pixels_history():
+    """The rule's sums (Sppm._balance_radius_sums) weigh each pixel's bias by rho_b = R^2 /
+    mean(R_t^2) and its variance by rho_v = R^-2 / mean(R_t^-2) (docs/guiding.md, "The
+    balanced radius with the history's ratios"). Given passes measured at twice today's radius,
+    the same bias and noise sums must be scaled by 1/4 and 4, and the rule must then not fire
+    where it fires without that history."""
+    from photonmc.methods.merge_radius import bias_outweighs_noise
+
+    scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})
+    p = prepare(scene, method="sppm", options={"radius_rule": "balanced"})
+    m = p.method
+    try:
+        n_pix, passes, r = m.n_pixels, 20.0, 0.05
+        rng = np.random.default_rng(0)
+        mean_d = rng.uniform(0.5, 1.5, n_pix)
+        var_d = rng.uniform(0.01, 0.02, n_pix)
+        m.bias_passes.from_numpy(np.full(n_pix, passes))
+        m.bias_sum.from_numpy(passes * mean_d)
+        m.bias_sq.from_numpy(passes * (mean_d ** 2 + var_d * (passes - 1.0) / passes))
+        m.R.from_numpy(np.full(n_pix, r))
+        se_sq = var_d / passes
+        bias_sq, variance, spread = 4.0 * (mean_d ** 2 - se_sq), se_sq, 32.0 * se_sq ** 2
+        sums = {}
+        for history in (r, 2.0 * r):
+            m.bias_radius_sq.from_numpy(np.full(n_pix, passes * history ** 2))
+            m.bias_inverse_radius_sq.from_numpy(np.full(n_pix, passes / history ** 2))
+            sums[history] = np.array(m._balance_radius_sums())
+        rho_b, rho_v = 0.25, 4.0
+        np.testing.assert_allclose(sums[r], [bias_sq.sum(), variance.sum(), spread.sum()], rtol=1e-9)
+        np.testing.assert_allclose(sums[2.0 * r], [rho_b * bias_sq.sum(), rho_v * variance.sum(),
+                                                   rho_b ** 2 * spread.sum()], rtol=1e-9)
+        # With the noise scaled up, the bias term (about 280) exceeds half the noise term (about
+        # 120) without history, and not once the wider passes are weighed in (70 against 480).
+        assert bias_outweighs_noise(*(sums[r] * [1.0, 5000.0, 1.0]))
+        assert not bias_outweighs_noise(*(sums[2.0 * r] * [1.0, 5000.0, 1.0]))
+    finally:
+        p.release()
