@@ -636,8 +636,9 @@ class Sppm(Method):
         step. Summing over the image, as the RMSE does, lets a bias show that no single
         pixel's noise lets through; the standard error (each pixel's term has variance about
         2 x 16 se^4 where it has no bias) keeps a few pixels' rare bright photons from
-        passing for bias. A serial loop: a fixed summation order keeps the image
-        deterministic."""
+        passing for bias. Any mix of alpha and ALPHA_FAST x alpha steps keeps SPPM
+        consistent: the radii still go to 0 and the photons to infinity. A serial loop: a
+        fixed summation order keeps the image deterministic."""
         bias_sq, variance, spread = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
         ti.loop_config(serialize=True)
         for i in range(self.n_pixels):
