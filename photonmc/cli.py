@@ -197,12 +197,14 @@ def _add_vcm_options(parser):
                         "(and sppm's --photons auto) minimises: the image's MSE (default) or its relative MSE, each "
                         "pixel's error weighted by 1 / (its running mean^2 + (0.1 x the image's mean)^2) "
                         "(docs/mbe.md, docs/guiding.md)")
-    g.add_argument("--camera-variance", choices=["twins", "pairs"],
+    g.add_argument("--camera-variance", choices=["twins", "pairs", "auto"],
                    help="sppm, visibility, spatial-tf: where the effort balance reads the camera side's variance "
                         "under stratified pixel positions: from twin camera paths at the same positions, plus what "
                         "the positions' stratification leaves after the paths so far (twins; sppm's default), or "
-                        "from consecutive passes (pairs; visibility's and spatial-tf's default) (docs/effort.md, "
-                        "'Twin camera paths')")
+                        "from consecutive passes (pairs; visibility's and spatial-tf's default), or for those two "
+                        "twins in the passes whose length is the photon floor and pairs where the chains' "
+                        "regeneration sets it (auto; sppm: twins) (docs/effort.md, 'Twin camera paths', "
+                        "'Twins where K does not set the pass length')")
 
 
 def _method_options(args) -> dict:

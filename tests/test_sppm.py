@@ -299,12 +299,16 @@ def test_balanced_radius_rule_weighs_each_pixels_history():
             m.bias_inverse_radius_sq.from_numpy(np.full(n_pix, passes / history ** 2))
             sums[history] = np.array(m._balance_radius_sums())
         rho_b, rho_v = 0.25, 4.0
-        np.testing.assert_allclose(sums[r], [bias_sq.sum(), variance.sum(), spread.sum()], rtol=1e-9)
+        image = [bias_sq.sum(), variance.sum(), spread.sum()]
+        np.testing.assert_allclose(sums[r], image + image, rtol=1e-9)
+        # The last three (for the effort balance) are the passes at today's radius: the bias
+        # by rho_b^2, its spread by rho_b^4.
         np.testing.assert_allclose(sums[2.0 * r], [rho_b * bias_sq.sum(), rho_v * variance.sum(),
-                                                   rho_b ** 2 * spread.sum()], rtol=1e-9)
+                                                   rho_b ** 2 * spread.sum(), rho_b ** 2 * bias_sq.sum(),
+                                                   rho_v * variance.sum(), rho_b ** 4 * spread.sum()], rtol=1e-9)
         # With the noise scaled up, the bias term (about 280) exceeds half the noise term (about
         # 120) without history, and not once the wider passes are weighed in (70 against 480).
-        assert bias_outweighs_noise(*(sums[r] * [1.0, 5000.0, 1.0]))
-        assert not bias_outweighs_noise(*(sums[2.0 * r] * [1.0, 5000.0, 1.0]))
+        assert bias_outweighs_noise(*(sums[r][:3] * [1.0, 5000.0, 1.0]))
+        assert not bias_outweighs_noise(*(sums[2.0 * r][:3] * [1.0, 5000.0, 1.0]))
     finally:
         p.release()

@@ -48,6 +48,7 @@ POSITION_EXPONENT = 1.5
 # (visibility at 64x64 with 1, 4 and 16 camera paths per pixel on light-gap and the held-out
 # closet: photon-pass time against segments and deposits; docs/effort.md).
 DEPOSIT_WORK = 1.5
+CANDIDATES = 512         # log-spaced candidates the bias-aware choice is searched over
 
 
 class EffortBalance:
@@ -63,6 +64,10 @@ class EffortBalance:
         self.held_camera = bool(held_camera)
         self.pair_sum = 0.0                  # held_camera: the pairs' V_c estimates, summed
         self.pair_samples = 0
+        self.pair_variances = []             # held_camera: the pairs' last HISTORY estimates
+        # held_camera: read V_c from the pairs after all, as a pairs balance does (the guided
+        # methods' --camera-variance auto sets it pass by pass: methods/guided.py).
+        self.use_pairs = False
         self.camera_sum = 0.0                # every V_c estimate so far (trim_camera False)
         self.photons = int(initial)
         self.alpha = float(alpha)
@@ -78,6 +83,24 @@ class EffortBalance:
         self.observed = 0                    # all iterations
         self.last_photons = None
         self.last_camera_paths = None
+        self.bias_ratio = 0.0                # the image's squared radius bias / its photon variance
+
+    def observe_bias(self, bias_sq: float, variance: float, spread: float, z: float) -> None:
+        """The image's squared radius bias and its photon variance as the current radii would
+        make them (summed over pixels, each pixel's passes rescaled to its radius now by
+        rho_b^2 and rho_v: methods/sppm.py, the balanced radius rule's probes), and the
+        variance of the bias_sq estimate; the bias counts only by what exceeds z standard
+        errors of it, so that noise read as bias does not move the effort. The balance weighs
+        the split the render would have had throughout, whose passes' radii shrink as
+        t^((alpha-1)/2): over them the image's bias is 1/alpha and its photon variance
+        1/(2-alpha) times that of a pass at the last radius. Taken from the current radii, not
+        the image's history, the bias does not count the early wide passes, which no split
+        can now undo (they made a simulated render choose too many photons: docs/effort.md)."""
+        excess = bias_sq - z * math.sqrt(max(spread, 0.0))
+        if excess > 0.0 and variance > 0.0:
+            self.bias_ratio = (excess / self.alpha ** 2) / (variance / (2.0 - self.alpha))
+        else:
+            self.bias_ratio = 0.0
 
     def observe(self, photons: int, spread: float, half_difference: float, radius_sq: float,
                 camera_work: float, photon_work: float, camera_paths: int = 1, deposits: float = 0.0,
@@ -108,6 +131,8 @@ class EffortBalance:
             if keep:
                 self.pair_sum += v_c
                 self.pair_samples += 1
+                self.pair_variances.append(v_c)
+                del self.pair_variances[:-HISTORY]
             v_c = camera_held
         if keep:
             self.photon_variances_r2.append(v_p * radius_sq)
@@ -133,13 +158,14 @@ class EffortBalance:
         # error, two of the four largest lit by rare camera paths through the glass), and a
         # mean over the whole render keeps an event once it is seen instead of forgetting it
         # after HISTORY iterations.
-        if self.trim_camera:
-            camera = sorted(self.camera_variances)     # a few hundred floats: cheaper than NumPy's
+        pairs = bool(self.held_camera and self.use_pairs and self.pair_variances)
+        if pairs or self.trim_camera:
+            camera = sorted(self.pair_variances if pairs else self.camera_variances)   # cheaper than NumPy's
             keep = len(camera) - len(camera) // TRIM
             v_c = math.fsum(camera[:keep]) / keep
         else:
             v_c = self.camera_sum / self.samples
-        if self.held_camera and self.pair_samples:
+        if self.held_camera and self.pair_samples and not pairs:
             v_c += self._position_share(v_c)
         return (v_c,
                 math.fsum(self.photon_variances_r2) / len(self.photon_variances_r2) / self.radius_sq)
@@ -155,12 +181,12 @@ class EffortBalance:
         m = max(self.sum_camera_paths, 1.0)
         return POSITION_EXPONENT * v_pos * m ** (1.0 - POSITION_EXPONENT)
 
-    def _optimum(self, deposits_as_camera_work: bool):
-        """n* for one camera path per pixel, inf where no camera-side error is measured yet,
-        or None where there is nothing to go by: no estimate yet, or no photon has reached a
-        measurement point (that says the photons are scarce, not useless). Deposits count as
-        camera work for the choice of K at a fixed photon count; sppm's choice of photons
-        does not count them (not measured to help, docs/effort.md)."""
+    def _model(self, deposits_as_camera_work: bool):
+        """(V_c, V_p, camera work per camera path, work per photon), or None where there is
+        nothing to go by: no estimate yet, or no photon has reached a measurement point (that
+        says the photons are scarce, not useless). Deposits count as camera work for the
+        choice of K at a fixed photon count; sppm's choice of photons does not count them (not
+        measured to help, docs/effort.md)."""
         shares = self.shares()
         if shares is None or self.sum_photons <= 0:
             return None
@@ -172,9 +198,34 @@ class EffortBalance:
         photon_work = self.sum_photon_work / self.sum_photons
         if v_p <= 0.0 or photon_work <= 0.0:
             return None
+        return v_c, v_p, camera_work, photon_work
+
+    def _optimum(self, deposits_as_camera_work: bool):
+        """n* for one camera path per pixel, inf where no camera-side error is measured yet,
+        None where there is nothing to go by (_model)."""
+        model = self._model(deposits_as_camera_work)
+        if model is None:
+            return None
+        v_c, v_p, camera_work, photon_work = model
         if v_c <= 0.0:
             return math.inf
         return math.sqrt(self.alpha * camera_work / photon_work * v_p / v_c)
+
+    def _error_with_bias(self, model, photons, camera_paths, photons_now: float, camera_paths_now: float):
+        """The image's error at a fixed budget for candidate splits (arrays of photons and
+        camera paths per pass), in units of its photon variance now, had the render used each
+        split throughout: camera variance V_c / K x passes^-1 (passes ~ 1 / work per pass);
+        photon variance and squared bias fall with the photons per unit of work x, as
+        x^-alpha (the radii shrink as the photons come, so a photon removes alpha of its share)
+        and x^-2(1-alpha) (bias ~ R^2 ~ N^(alpha-1)). At bias_ratio 0 its least is the closed
+        form's n* (K = n / n*)."""
+        v_c, v_p, camera_work, photon_work = model
+        work = camera_work * camera_paths + photon_work * photons
+        work_now = camera_work * camera_paths_now + photon_work * photons_now
+        gain = (photons / work) / (photons_now / work_now)     # photons per unit of work, relative
+        photon_now = v_p / photons_now
+        return (v_c / camera_paths * work / work_now / photon_now
+                + gain ** -self.alpha + self.bias_ratio * gain ** (-2.0 * (1.0 - self.alpha)))
 
     def next_camera_paths(self, photons: int, most: int) -> int:
         """Camera paths per pixel for a pass of `photons` photon paths: photons / n*, within
@@ -183,7 +234,13 @@ class EffortBalance:
         best = self._optimum(deposits_as_camera_work=True)
         if best is None:
             return k
-        target = min(max(photons / best, k / MAX_CHANGE), k * MAX_CHANGE)
+        target = photons / best
+        if self.bias_ratio > 0.0 and target > 1.0:
+            # The bias asks for more photons per unit of work, i.e. fewer camera paths.
+            ks = np.geomspace(1.0, target, CANDIDATES)
+            error = self._error_with_bias(self._model(True), float(photons), ks, float(photons), float(k))
+            target = float(ks[int(np.argmin(error))])
+        target = min(max(target, k / MAX_CHANGE), k * MAX_CHANGE)
         return int(min(max(round(target), 1), most))
 
     def next_photons(self) -> int:
@@ -193,6 +250,13 @@ class EffortBalance:
         best = self._optimum(deposits_as_camera_work=False)
         if best is None:
             return self.photons
+        cap = float(min(MAX_PER_PIXEL * self.n_pixels, 1 << 28))
+        if self.bias_ratio > 0.0 and best < cap:
+            # The bias asks for more photons than the variance alone does.
+            ns = np.geomspace(best, cap, CANDIDATES)
+            k = float(self.last_camera_paths or 1)
+            error = self._error_with_bias(self._model(False), ns, k, float(self.photons), k)
+            best = float(ns[int(np.argmin(error))])
         target = min(max(best, self.photons / MAX_CHANGE), self.photons * MAX_CHANGE)
         self.photons = int(min(max(round(target), 1), MAX_PER_PIXEL * self.n_pixels, 1 << 28))
         return self.photons
@@ -200,6 +264,7 @@ class EffortBalance:
     def stats(self) -> dict:
         shares = self.shares()
         return {"photons_next_pass": self.photons,
+                "bias_ratio": self.bias_ratio,
                 "camera_variance": shares[0] if shares else None,
                 "photon_variance_per_photon": shares[1] if shares else None,
                 "camera_work_per_pass": self.sum_camera_work / self.observed if self.observed else None,

@@ -90,10 +90,12 @@ class GuidedPhotons(Sppm):
                "expected_values": False, "suffix_mutation": SUFFIX_MUTATION,
                "mutation": "joint", "warm_start": False, "ladder_burn_in": LADDER_BURN_IN,
                "uniform_weight": "auto",
-               # The balance's K also sets how many measurement points the chains' targets can
+               # The balance's K also sets how many measurement points the chains' target can
                # reach, so fewer points lengthen a pass; with twins K fell, and the held-out light
                # bay lost 14 % while the closet gained 11 % (15 s, seeds 0-3; docs/effort.md,
-               # "Twin camera paths").
+               # "Twin camera paths"). auto (twins only where K does not set the pass length)
+               # won the slatted window and lost light-gap and the Cornell box (docs/effort.md,
+               # "Twins where K does not set the pass length").
                "camera_variance": "pairs"}
     # Every step's uniform photon is also an estimate of its own, sppm's (an accumulator after
     # the levels'), joined to the chains' with the least-variance weight beta; the chains'
@@ -398,6 +400,7 @@ class GuidedPhotons(Sppm):
         upload_fields([(self.level_scale, raw * np.append(np.full(self.n_levels, 1.0 - beta), beta)),
                        (self.raw_scale, raw)])
         self._after_pass(scale)
+        self._choose_camera_variance()
         self._update_balanced(n_p)
         self.pool.adapt(tallies, self.target_acceptance,
                         uploads=[(self.b_mis, b.astype(np.float32))] if (b > 0).all() else [])
@@ -409,6 +412,19 @@ class GuidedPhotons(Sppm):
             self.passes_with_b += 1
         self.photons_emitted += n_p
         self.work_done += n_p
+
+    def _choose_camera_variance(self):
+        """--camera-variance auto (an option): the twins' V_c (the pixel positions held) where
+        this pass's length was its photon floor, so that K does not move it; the pairs' where
+        the chains' regeneration set it. Fewer camera paths make fewer measurement points for
+        the chains' targets to reach, fewer visible uniform proposals and so longer passes
+        there, a cost the balance does not model (the twins' lower V_c lost the light bay 14 %
+        by it); where K moves only the camera work the pairs' V_c, mostly where in its pixel a
+        path starts (the slatted window's lit slats), chose K = 24-42. Measured, not the
+        default: the slatted window 0.91x, light-gap 1.11x, the Cornell box 1.06x
+        (docs/effort.md, "Twins where K does not set the pass length")."""
+        if self.effort is not None and self.camera_variance_auto:
+            self.effort.use_pairs = self.regeneration_bound
 
     def _observe_uniform_weight(self, s_chains: float, s_uniform: float, s_product: float):
         """The pass's even-odd sums of the chains' and the uniform photons' estimates
@@ -428,11 +444,13 @@ class GuidedPhotons(Sppm):
         n = self.photons_per_iteration
         if self.n_levels > 1:
             n = max(n, MIN_STEPS_PER_LADDER * self.n_chains)
+        floor = n
         if self.iterations > 0:
             b0 = self.b_last[0]
             want = self.last_steps * 2 if b0 <= 0 else math.ceil(REGENERATIONS / b0) * self.n_chains
             n = max(n, min(int(want), MAX_STEPS_PER_PASS))
         self.last_steps = n
+        self.regeneration_bound = n > floor
         return n
 
     def _prepare_targets(self):

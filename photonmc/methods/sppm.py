@@ -41,7 +41,7 @@ from ..kernels.photon import MAX_PHOTON_SEGMENTS, NORMAL_COS_MIN, photon_segment
 from ..kernels.sampling import onb, to_local, vec3
 from .base import Method
 from .effort import EffortBalance
-from .merge_radius import ALPHA_FAST, BIAS_MIN_PASSES, bias_outweighs_noise
+from .merge_radius import ALPHA_FAST, BIAS_MIN_PASSES, BIAS_Z, bias_outweighs_noise
 from ..taichi_frontend import data_oriented
 
 FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flux
@@ -75,7 +75,12 @@ class Sppm(Method):
     default_iterations = 100
     OPTIONS = {"photons": None, "alpha": 2.0 / 3.0, "radius": None, "radius_pixels": 2.0, "tau_form": False,
                "camera_paths": None, "radius_rule": "balanced", "balance": "mse",
-               "pixel_samples": "sobol", "camera_variance": "twins"}
+               "pixel_samples": "sobol", "camera_variance": "twins",
+               # The effort balance may also weigh the radius bias the balanced rule measures
+               # (effort.py, observe_bias). Off: on the rooms measured it moved K and the
+               # photons little and the error not beyond the seeds' spread (docs/effort.md,
+               # "The radius bias in the balance").
+               "effort_bias": False}
     RADIUS_RULES = ("progressive", "balanced")
     default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
     # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the
@@ -104,6 +109,8 @@ class Sppm(Method):
             raise SettingsError(f"--photons must be a number of photons or 'auto', got '{opts['photons']}'")
         self.photons_per_iteration = int(self.n_pixels if opts["photons"] in (None, "auto") else opts["photons"])
         self.alpha = float(opts["alpha"])
+        if not isinstance(opts["effort_bias"], bool):
+            raise SettingsError(f"effort_bias must be true or false, got {opts['effort_bias']!r}")
         self._set_camera_paths(opts["camera_paths"])
         if not 1 <= self.photons_per_iteration <= 1 << 28:
             raise SettingsError(f"--photons must be between 1 and 2^28, got {self.photons_per_iteration}")
@@ -127,13 +134,17 @@ class Sppm(Method):
         # relMSE does (docs/guiding.md, "The closet's error, and two levers measured")
         self.relative_balance = opts["balance"] == "relmse"
         self.sobol_pixels = pixel_samples.uses_sobol(opts)
-        if opts["camera_variance"] not in ("twins", "pairs"):
-            raise SettingsError(f"--camera-variance must be 'twins' or 'pairs', got '{opts['camera_variance']}'")
+        if opts["camera_variance"] not in ("twins", "pairs", "auto"):
+            raise SettingsError(f"--camera-variance must be 'twins', 'pairs' or 'auto', got "
+                                f"'{opts['camera_variance']}'")
         # The effort balance's V_c from twin camera paths, the pixel positions held, where the
         # positions are stratified and the balance steers something (docs/effort.md, "Twin
-        # camera paths"); else from consecutive passes.
-        self.held_camera = (self.sobol_pixels and opts["camera_variance"] == "twins"
+        # camera paths"); else from consecutive passes. auto: twins, and the guided methods
+        # read the pairs' instead in passes whose length their chains set (guided.py).
+        self.held_camera = (self.sobol_pixels and opts["camera_variance"] in ("twins", "auto")
                             and (self.balanced or self.camera_paths_auto))
+        self.camera_variance_auto = self.held_camera and opts["camera_variance"] == "auto"
+        self.regeneration_bound = False
         self.twins_now = False
         self.twin_passes = 0
         self.twin_pixels_unmatched = 0.0
@@ -306,6 +317,8 @@ class Sppm(Method):
             sums = self._balance_radius_sums()
             self.alpha_factor = ALPHA_FAST if bias_outweighs_noise(sums[0], sums[1], sums[2]) else 1.0
             self.fast_passes += int(self.alpha_factor < 1.0)
+            if self.effort is not None and self.options["effort_bias"]:
+                self.effort.observe_bias(float(sums[3]), float(sums[4]), float(sums[5]), BIAS_Z)
         if self.effort is None:
             return
         self._effort_sums(self.relative_balance, self.iterations + 1, self.photons_emitted + n_p)
@@ -620,7 +633,7 @@ class Sppm(Method):
         self.bias_inverse_radius_sq[i] += 1.0 / (self.R[i] * self.R[i])
 
     @ti.kernel
-    def _balance_radius_sums(self) -> ti.types.vector(3, ti.f64):
+    def _balance_radius_sums(self) -> ti.types.vector(6, ti.f64):
         """The balanced radius rule's sums over pixels (methods/merge_radius.py,
         bias_outweighs_noise decides; docs/guiding.md, "The balanced radius with the history's
         ratios").
@@ -638,8 +651,11 @@ class Sppm(Method):
         2 x 16 se^4 where it has no bias) keeps a few pixels' rare bright photons from
         passing for bias. Any mix of alpha and ALPHA_FAST x alpha steps keeps SPPM
         consistent: the radii still go to 0 and the photons to infinity. A serial loop: a
-        fixed summation order keeps the image deterministic."""
+        fixed summation order keeps the image deterministic. The last three are the same
+        sums at the pixels' radii now (the bias by rho_b^2: a pass at R has bias rho_b x the
+        image's), for the effort balance (effort.py, observe_bias)."""
         bias_sq, variance, spread = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
+        image_bias_sq, image_variance, image_spread = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
         ti.loop_config(serialize=True)
         for i in range(self.n_pixels):
             n = self.bias_passes[i]
@@ -652,7 +668,10 @@ class Sppm(Method):
                 bias_sq += rho_b * 4.0 * (mean * mean - se_sq)
                 variance += rho_v * se_sq
                 spread += rho_b * rho_b * 32.0 * se_sq * se_sq
-        return ti.Vector([bias_sq, variance, spread], ti.f64)
+                image_bias_sq += rho_b * rho_b * 4.0 * (mean * mean - se_sq)
+                image_variance += rho_v * se_sq
+                image_spread += rho_b ** 4 * 32.0 * se_sq * se_sq
+        return ti.Vector([bias_sq, variance, spread, image_bias_sq, image_variance, image_spread], ti.f64)
 
     @ti.kernel
     def _effort_sums(self, relative: ti.template(), passes: ti.f64, photons: ti.f64):
@@ -733,7 +752,8 @@ class Sppm(Method):
                 **({"passes_shrunk_fast": self.fast_passes} if self.balanced_radius else {}),
                 "effort": {"balanced": self.balanced and self.effort is not None,
                            **(self.effort.stats() if self.effort is not None else {}),
-                           "camera_variance_from": "twins" if self.held_camera else "pairs",
+                           "camera_variance_from": ("auto" if self.camera_variance_auto else "twins")
+                           if self.held_camera else "pairs",
                            **({"twin_passes": self.twin_passes,
                                "twin_pixels_unmatched_share": self.twin_pixels_unmatched
                                / max(self.twin_passes * self.n_pixels, 1)} if self.held_camera else {})}}
