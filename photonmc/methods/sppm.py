@@ -655,7 +655,7 @@ class Sppm(Method):
         sums at the pixels' radii now (the bias by rho_b^2: a pass at R has bias rho_b x the
         image's), for the effort balance (effort.py, observe_bias)."""
         bias_sq, variance, spread = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
-        image_bias_sq, image_variance, image_spread = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
+        now_bias_sq, now_variance, now_spread = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
         ti.loop_config(serialize=True)
         for i in range(self.n_pixels):
             n = self.bias_passes[i]
@@ -668,10 +668,10 @@ class Sppm(Method):
                 bias_sq += rho_b * 4.0 * (mean * mean - se_sq)
                 variance += rho_v * se_sq
                 spread += rho_b * rho_b * 32.0 * se_sq * se_sq
-                image_bias_sq += rho_b * rho_b * 4.0 * (mean * mean - se_sq)
-                image_variance += rho_v * se_sq
-                image_spread += rho_b ** 4 * 32.0 * se_sq * se_sq
-        return ti.Vector([bias_sq, variance, spread, image_bias_sq, image_variance, image_spread], ti.f64)
+                now_bias_sq += rho_b * rho_b * 4.0 * (mean * mean - se_sq)
+                now_variance += rho_v * se_sq
+                now_spread += rho_b ** 4 * 32.0 * se_sq * se_sq
+        return ti.Vector([bias_sq, variance, spread, now_bias_sq, now_variance, now_spread], ti.f64)
 
     @ti.kernel
     def _effort_sums(self, relative: ti.template(), passes: ti.f64, photons: ti.f64):
