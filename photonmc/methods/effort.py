@@ -200,10 +200,9 @@ class EffortBalance:
             return None
         return v_c, v_p, camera_work, photon_work
 
-    def _optimum(self, deposits_as_camera_work: bool):
-        """n* for one camera path per pixel, inf where no camera-side error is measured yet,
-        None where there is nothing to go by (_model)."""
-        model = self._model(deposits_as_camera_work)
+    def _optimum(self, model):
+        """n* for one camera path per pixel under `model` (_model's), inf where no camera-side
+        error is measured yet, None where there is nothing to go by."""
         if model is None:
             return None
         v_c, v_p, camera_work, photon_work = model
@@ -231,14 +230,15 @@ class EffortBalance:
         """Camera paths per pixel for a pass of `photons` photon paths: photons / n*, within
         [1, most] and at most MAX_CHANGE times the last pass's. Held while nothing is measured."""
         k = self.last_camera_paths or 1
-        best = self._optimum(deposits_as_camera_work=True)
+        model = self._model(deposits_as_camera_work=True)
+        best = self._optimum(model)
         if best is None:
             return k
         target = photons / best
         if self.bias_ratio > 0.0 and target > 1.0:
             # The bias asks for more photons per unit of work, i.e. fewer camera paths.
             ks = np.geomspace(1.0, target, CANDIDATES)
-            error = self._error_with_bias(self._model(True), float(photons), ks, float(photons), float(k))
+            error = self._error_with_bias(model, float(photons), ks, float(photons), float(k))
             target = float(ks[int(np.argmin(error))])
         target = min(max(target, k / MAX_CHANGE), k * MAX_CHANGE)
         return int(min(max(round(target), 1), most))
@@ -247,7 +247,8 @@ class EffortBalance:
         """Photons for the next pass: n*, at most MAX_CHANGE times the last pass's (so twice
         as many where no camera-side error is measured yet); held where there is nothing to
         go by, since fewer photons would only make a scarce deposit rarer."""
-        best = self._optimum(deposits_as_camera_work=False)
+        model = self._model(deposits_as_camera_work=False)
+        best = self._optimum(model)
         if best is None:
             return self.photons
         cap = float(min(MAX_PER_PIXEL * self.n_pixels, 1 << 28))
@@ -255,7 +256,7 @@ class EffortBalance:
             # The bias asks for more photons than the variance alone does.
             ns = np.geomspace(best, cap, CANDIDATES)
             k = float(self.last_camera_paths or 1)
-            error = self._error_with_bias(self._model(False), ns, k, float(self.photons), k)
+            error = self._error_with_bias(model, ns, k, float(self.photons), k)
             best = float(ns[int(np.argmin(error))])
         target = min(max(best, self.photons / MAX_CHANGE), self.photons * MAX_CHANGE)
         self.photons = int(min(max(round(target), 1), MAX_PER_PIXEL * self.n_pixels, 1 << 28))

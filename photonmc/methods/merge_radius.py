@@ -15,8 +15,9 @@ the film's squared error where
 rho_b = r^2 / mean(r_i^2) and rho_v = r^-2 / mean(r_i^-2) over the passes measured. With one
 radius throughout this is the balance bias^2 = variance / 2; the ratios keep the early passes'
 large radii, whose bias no later pass can undo, from driving the radius down for ever. The
-photon methods apply the same test with each pixel's own radius history (methods/sppm.py). Any sequence of alpha and alpha / 2 steps still sends r to 0 with sum r_i^-2 /
-n^2 -> 0, so merging stays consistent.
+photon methods apply the same test with each pixel's own radius history (methods/sppm.py).
+Any sequence of alpha and alpha / 2 steps still sends r to 0 with sum r_i^-2 / n^2 -> 0, so
+merging stays consistent.
 
 Plain values only: the state is saved with the render (state.py).
 """
