@@ -66,6 +66,9 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           # Held out from the balanced merging radius (stop 52).
           "slatted-lamp": ("../tools/heldout/slatted-lamp.xml", "../../tools/heldout/slatted-lamp-64.exr",
                            {"res": "64"}),
+          # Made after stop 54's measurements.
+          "transom-slot": ("../tools/heldout/transom-slot.xml", "../../tools/heldout/transom-slot-64.exr",
+                           {"res": "64"}),
           # Rooms of mbe's suite (tools/mbe_suite.sh), for A/B runs of vcm's and mbe's options.
           "slit-cabinet": ("../tools/heldout/slit-cabinet.xml", "../../tools/heldout/slit-cabinet-64.exr",
                            {"res": "64"}),
