@@ -29,7 +29,8 @@ import numpy as np
 from .errors import PhotonmcError
 
 FORMAT = "photonmc-render-state"
-FORMAT_VERSION = 1
+# 2: sppm's direct term Ld is summed over camera paths, no longer over passes' means (sppm.py)
+FORMAT_VERSION = 2
 SCALARS = (bool, int, float, str, type(None))
 SKIPPED = ("dscene", "settings", "options")       # given by the job, not computed
 SPARSE_MIN_BYTES = 1 << 20

@@ -11,7 +11,8 @@ from photonmc.kernels.hashgrid import HashGrid
 from photonmc.metrics import downsample, luminance, mean_luminance
 from photonmc.loop import Budget, prepare, run
 
-from .conftest import REFS, SCENE_REFERENCES, SCENES, assert_image_follows_the_units, scaled_box_scene
+from .conftest import (REFS, SCENE_REFERENCES, SCENES, assert_image_follows_the_units, camera_xml,
+                       scaled_box_scene)
 from .test_pt import furnace_expectation, furnace_xml
 
 
@@ -310,5 +311,34 @@ def test_balanced_radius_rule_weighs_each_pixels_history():
         # 120) without history, and not once the wider passes are weighed in (70 against 480).
         assert bias_outweighs_noise(*(sums[r][:3] * [1.0, 5000.0, 1.0]))
         assert not bias_outweighs_noise(*(sums[2.0 * r][:3] * [1.0, 5000.0, 1.0]))
+    finally:
+        p.release()
+
+
+def test_direct_light_weighs_every_camera_path_alike(write_scene):
+    """The direct term is the mean over a pixel's camera paths whatever the K of their passes
+    (docs/effort.md, "Camera paths weighed alike"): a pass's mean counted as one sample let
+    passes of few paths outweigh the rest, and the pixel positions were no longer an equally
+    weighted net. A lamp seen edge-on against nothing: every path gives its radiance or 0, so
+    a pixel's direct sum is its radiance times a whole number of paths."""
+    radiance = 2.0
+    scene = load_scene(write_scene(camera_xml(res=8, fov=50) + f"""
+        <shape type="rectangle"><transform name="to_world"><scale value="0.6"/><rotate z="1" angle="23"/>
+            <translate x="0.25" y="-0.1" z="-2"/></transform>
+            <emitter type="area"><rgb name="radiance" value="{radiance}"/></emitter></shape>"""))
+    p = prepare(scene, method="sppm", seed=3, options={"photons": 256, "camera_paths": 8})
+    try:
+        m = p.method
+        passes = (1, 3, 8, 2, 5)
+        for k in passes:
+            m.camera_paths = k
+            m.iterate()
+        paths = sum(passes)
+        assert m.camera_paths_done() == paths
+        hits = luminance(m.Ld.to_numpy().reshape(8, 8, 3)) / radiance
+        assert np.abs(hits - np.round(hits)).max() < 1e-6, hits
+        edge = (hits > 0.5) & (hits < paths - 0.5)
+        assert edge.sum() >= 4, hits          # pixels the lamp's edges cross
+        assert np.allclose(luminance(m.image()), hits * radiance / paths, atol=1e-9)
     finally:
         p.release()

@@ -10,13 +10,16 @@ Each iteration:
    `accepts`, decides both counting and contributing);
 4. per-pixel progressive update: N' = N + aM, R' = R sqrt(N'/(N+M)), and the reflected
    flux accumulated in the D form D += W Phi / (pi R^2) (equal to the tau form, §1.3).
-Image: Ld / I + D / N_e, with N_e photons emitted in all iterations.
+Image: Ld / C + D / N_e, with C camera paths per pixel and N_e photons in all iterations.
 
 A pass may trace K camera paths per pixel (`--camera-paths`, docs/effort.md): K measurement
 points per pixel, each gathering the same photons, sharing the pixel's radius and averaged
 into one estimate per pass. The guided methods need long photon passes (every chain must
 regenerate, guided.py); where the error is camera-side K > 1 buys back the camera passes
-that such a pass would otherwise cost.
+that such a pass would otherwise cost. The direct term weighs every camera path alike, whatever
+the K of its pass: a pass's mean weighted as one sample let the balance's early passes of
+K = 1 outweigh later paths 24 to 1, and the film's pixel positions were no longer the equally
+weighted net that stratifies a lamp's edge (docs/effort.md, "Camera paths weighed alike").
 
 Per-iteration flux is accumulated in 64-bit fixed point (photon power relative to the
 scene's total emitted power, 2^-32 resolution): integer atomics are order-independent, so
@@ -182,7 +185,7 @@ class Sppm(Method):
         self.N = f.scalar(ti.f64, n)
         self.D = f.vector(3, ti.f64, n)
         self.tau = f.vector(3, ti.f64, n)
-        self.Ld = f.vector(3, ti.f64, n)
+        self.Ld = f.vector(3, ti.f64, n)               # direct light summed over camera paths
         self.ld_pass = f.vector(3, ti.f64, n)           # this iteration's direct light
         # Per-iteration accumulators (fixed point), per MP, and counters.
         self.M = f.scalar(ti.i64, self.n_mp)
@@ -321,7 +324,7 @@ class Sppm(Method):
                 self.effort.observe_bias(float(sums[3]), float(sums[4]), float(sums[5]), BIAS_Z)
         if self.effort is None:
             return
-        self._effort_sums(self.relative_balance, self.iterations + 1, self.photons_emitted + n_p)
+        self._effort_sums(self.relative_balance, self.camera_paths_done(), self.photons_emitted + n_p)
         sums = self.effort_sums.to_numpy()
         spread, half, radius_sq, valid, camera_rays, segments, deposits = sums[:7]
         self._observe_uniform_weight(*sums[7:10])
@@ -556,8 +559,8 @@ class Sppm(Method):
                     self.phi[level, j] = ti.Vector([0, 0, 0], ti.i64)
                     self.phi_odd[level, j] = ti.Vector([0, 0, 0], ti.i64)
             self.deposits[i] = m
+            self.Ld[i] += ld              # per camera path: divided by the paths so far (image)
             ld /= k
-            self.Ld[i] += ld
             self.ld_pass[i] = ld
             # This iteration's estimate of the pixel (direct + its photons alone) and of each
             # half of its photons, for the effort balance (effort.py), before the update.
@@ -674,25 +677,25 @@ class Sppm(Method):
         return ti.Vector([bias_sq, variance, spread, now_bias_sq, now_variance, now_spread], ti.f64)
 
     @ti.kernel
-    def _effort_sums(self, relative: ti.template(), passes: ti.f64, photons: ti.f64):
+    def _effort_sums(self, relative: ti.template(), camera_paths: ti.f64, photons: ti.f64):
         """Sums over pixels for the effort balance, in one fixed order (a serial loop), so
         that the photon count it picks, and so the image, does not depend on thread timing.
         relative (--balance relmse): each pixel's terms weighted by 1 / (m^2 + eps), m its
-        running estimate after `passes` passes of `photons` photons in all, eps = (0.1 x the
-        image's mean m)^2 (converge's relMSE)."""
+        running estimate after `camera_paths` camera paths per pixel and `photons` photons in
+        all, eps = (0.1 x the image's mean m)^2 (converge's relMSE)."""
         sums = ti.Vector([0.0] * 10, ti.f64)
         lum = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
         eps = ti.f64(0.0)
         if ti.static(relative):
             ti.loop_config(serialize=True)
             for i in range(self.n_pixels):
-                eps += lum.dot(self.Ld[i] / passes + self.D[i] / photons)
+                eps += lum.dot(self.Ld[i] / camera_paths + self.D[i] / photons)
             eps = ti.max((0.1 * eps / ti.static(self.n_pixels)) ** 2, 1e-30)
         ti.loop_config(serialize=True)
         for i in range(self.n_pixels):
             weight = ti.f64(1.0)
             if ti.static(relative):
-                m = lum.dot(self.Ld[i] / passes + self.D[i] / photons)
+                m = lum.dot(self.Ld[i] / camera_paths + self.D[i] / photons)
                 weight = 1.0 / (m * m + eps)
             sums[0] += weight * self.spread[i]
             sums[1] += weight * self.half_difference[i]
@@ -721,11 +724,14 @@ class Sppm(Method):
         self.counters[3] = 0
 
     # -- results ----------------------------------------------------------------------
+    def camera_paths_done(self) -> int:
+        """Camera paths per pixel traced so far (the pixel's points taken from its sequences)."""
+        return self.pixel_passes.points_even + self.pixel_passes.points_odd
+
     def image(self):
         h, w = self.dscene.height, self.dscene.width
-        iters = max(self.iterations, 1)
         ne = max(self.photons_emitted, 1)
-        direct = self.Ld.to_numpy() / iters
+        direct = self.Ld.to_numpy() / max(self.camera_paths_done(), 1)
         if self.tau_form:
             r = self.R.to_numpy()[:, None]
             area = np.where(r > 0, math.pi * r * r, 1.0)
