@@ -106,6 +106,51 @@ def test_camera_paths_settle_at_the_photons_over_the_optimum_of_a_known_model():
     assert balance.next_camera_paths(n, 8) == 2 and balance.next_camera_paths(100, 64) == 1
 
 
+def test_camera_paths_count_the_photon_noise_a_pixel_s_points_do_not_share():
+    """Observations made exactly from a pass variance V_c/K + V_MP (rho + (1 - rho)/K)/n: a
+    pixel's K points gather the same photons into discs that overlap only in part (docs/
+    effort.md, "Photon noise shared by a pixel's points"). The balance reads rho from each
+    point's own even-odd difference beside the pixel's, and K settles where the variance
+    K divides, (V_c + (1 - rho) V_MP/n)/K, against the part shared, rho V_MP/n, is least for
+    the work: 36 camera paths at rho = 0.2, where a balance that took the photon side as
+    shared (rho = 1, the model before) stops at 16."""
+    v_c, v_mp, camera_work, segments, alpha, n = 0.02, 50.0, 3000.0, 3.0, 2.0 / 3.0, 20000
+    for rho in (0.2, 1.0):
+        shared = rho * v_mp
+        divided = v_c + (1.0 - rho) * v_mp / n
+        best = n / math.sqrt(alpha * camera_work / segments * shared / divided)
+        balance, k, last_k = EffortBalance(1000, n, alpha), 1, None
+        for _ in range(30):
+            v_p = v_mp * (rho + (1.0 - rho) / k)            # the pixel's, per photon, at this K
+            v_p_last = v_mp * (rho + (1.0 - rho) / (last_k or k))
+            spread = v_c * (1 / k + 1 / (last_k or k)) + (v_p + v_p_last) / n
+            balance.observe(n, spread, v_p, 1.0, camera_work * k, segments * n, camera_paths=k,
+                            half_difference_mp=v_mp)
+            last_k, k = k, balance.next_camera_paths(n, 64)
+        assert balance.photon_correlation() == pytest.approx(rho)
+        assert abs(k - best) <= 1, (rho, best, k)
+    assert EffortBalance(1000, n, alpha).photon_correlation() is None     # K = 1 says nothing of rho
+
+
+def test_measurement_points_share_their_photon_noise_as_their_discs_overlap():
+    """The sppm kernel's per-point even-odd differences (half_difference_mp): four points per
+    pixel with discs of eight pixels' radius gather nearly the same photons (rho near 1); with
+    discs of a quarter of a pixel they gather different ones (rho small). The Cornell box at
+    16x16, the radii held (alpha near 1)."""
+    rho = {}
+    for radius_pixels in (8.0, 0.25):
+        p = Job(scene=str(SCENES / "cornell-box" / "scene.xml"), params={"res": "16"}, method="sppm", seed=4,
+                options={"photons": 4096, "alpha": 0.999, "radius_rule": "progressive", "camera_paths": 4,
+                         "radius_pixels": radius_pixels}).prepare()
+        try:
+            for _ in range(30):
+                p.method.iterate()
+            rho[radius_pixels] = p.method.effort.photon_correlation()
+        finally:
+            p.release()
+    assert rho[8.0] > 0.8 and rho[0.25] < 0.3, rho
+
+
 @pytest.mark.parametrize("var_a,var_b,cov,share", [
     (1.0, 3.0, 0.0, 0.75),       # independent: inverse-variance weights
     (1.0, 1e6, 0.0, 1.0 - 1e-6),  # B useless

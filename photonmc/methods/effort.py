@@ -27,7 +27,11 @@ the camera work; only the ratio n / K matters, so where the photon count is set 
 K = n / n*, n* being the photons it would choose for one camera path. Each photon deposited
 into a measurement point is work too (a BSDF evaluation and atomics, about DEPOSIT_WORK
 segments), and at a fixed photon count it grows with K, so for that choice it counts as camera
-work.
+work. The K points of a pixel gather the same photons but not into the same discs: where the
+radius has shrunk below the pixel's footprint their photon noises are nearly independent and K
+divides the photon side too. The balance measures how much of it they share (rho, from each
+point's own even-odd difference beside the pixel's) and counts the rest as camera variance
+for the choice of K (docs/effort.md, "Photon noise shared by a pixel's points").
 """
 from __future__ import annotations
 
@@ -73,6 +77,8 @@ class EffortBalance:
         self.alpha = float(alpha)
         self.camera_variances = []           # per-iteration V_c estimates
         self.photon_variances_r2 = []        # per-iteration V_p x mean R^2 (V_p grows as 1/R^2)
+        self.photon_variances_mp_r2 = []     # the same for each measurement point alone
+        self.correlation_terms = []          # passes of K >= 2: (K V_p - V_p,MP, (K - 1) V_p,MP)
         self.radius_sq = None                # mean R^2 of the last pass
         self.sum_camera_work = 0.0
         self.sum_camera_paths = 0.0          # camera paths per pixel, over all iterations
@@ -104,7 +110,8 @@ class EffortBalance:
 
     def observe(self, photons: int, spread: float, half_difference: float, radius_sq: float,
                 camera_work: float, photon_work: float, camera_paths: int = 1, deposits: float = 0.0,
-                keep: bool = True, camera_held: float | None = None) -> float | None:
+                keep: bool = True, camera_held: float | None = None,
+                half_difference_mp: float | None = None) -> float | None:
         """One iteration of `photons` photon paths and `camera_paths` camera paths per pixel:
         `spread` = mean over pixels of (this iteration's estimate - the last one's)^2,
         `half_difference` = mean of n (t_a - t_b)^2 / 4, `radius_sq` = mean squared gather
@@ -112,7 +119,8 @@ class EffortBalance:
         Returns this pair's V_c estimate (None for the first iteration); keep=False leaves it
         and the V_p estimate out of the balance's estimates (mbe's measurement passes).
         camera_held: this pass's V_c per camera path with the pixel positions held (twins),
-        which a held_camera balance takes instead of the pair's."""
+        which a held_camera balance takes instead of the pair's. half_difference_mp: the mean
+        over measurement points of each one's own half_difference (photon_correlation)."""
         self.observed += 1
         self.sum_deposits += deposits
         self.sum_camera_work += camera_work
@@ -136,6 +144,13 @@ class EffortBalance:
             v_c = camera_held
         if keep:
             self.photon_variances_r2.append(v_p * radius_sq)
+            if half_difference_mp is not None and half_difference_mp > 0.0:
+                self.photon_variances_mp_r2.append(half_difference_mp * radius_sq)
+                if camera_paths >= 2:
+                    self.correlation_terms.append((camera_paths * v_p - half_difference_mp,
+                                                   (camera_paths - 1) * half_difference_mp))
+                    del self.correlation_terms[:-HISTORY]
+                del self.photon_variances_mp_r2[:-HISTORY]
             if v_c is not None:
                 self.camera_variances.append(v_c)
                 self.camera_sum += v_c
@@ -169,6 +184,35 @@ class EffortBalance:
             v_c += self._position_share(v_c)
         return (v_c,
                 math.fsum(self.photon_variances_r2) / len(self.photon_variances_r2) / self.radius_sq)
+
+    def photon_correlation(self) -> float | None:
+        """rho, the mean correlation of the photon noise of two measurement points of one pixel
+        in one pass, or None before a pass of K >= 2 (docs/effort.md, "Photon noise shared by a
+        pixel's points"). A pixel's photon variance in a pass of K points is
+        V_MP (rho + (1 - rho) / K): their discs overlap (rho near 1) where the radius exceeds the
+        pixel's footprint, and lie apart (rho near 0) where it has shrunk below it, so that K
+        points then divide the photon side too. From E[K V_p - V_MP] = (K - 1) rho V_MP."""
+        if not self.correlation_terms:
+            return None
+        numerator = math.fsum(t[0] for t in self.correlation_terms)
+        denominator = math.fsum(t[1] for t in self.correlation_terms)
+        if not denominator > 0.0:
+            return None
+        return min(max(numerator / denominator, 0.0), 1.0)
+
+    def _split_photon_side(self, model, photons: float):
+        """model (_model's) for a choice of K at `photons` per pass: the part (1 - rho) of each
+        point's own photon variance that K points divide counts as camera variance per path,
+        and only the part rho they share as photon variance. Unchanged before rho is measured
+        (rho = 1: every point gathers the same photons, the model of the module's docstring)."""
+        rho = self.photon_correlation()
+        if model is None or rho is None or not self.photon_variances_mp_r2:
+            return model
+        v_c, v_p, camera_work, photon_work = model
+        v_mp = math.fsum(self.photon_variances_mp_r2) / len(self.photon_variances_mp_r2) / self.radius_sq
+        if rho <= 0.0:
+            return v_c + v_mp / photons, 0.0, camera_work, photon_work
+        return v_c + (1.0 - rho) * v_mp / photons, rho * v_mp, camera_work, photon_work
 
     def _position_share(self, v_held: float) -> float:
         """What the pixel positions still add to V_c per camera path (held_camera): the pairs'
@@ -230,12 +274,12 @@ class EffortBalance:
         """Camera paths per pixel for a pass of `photons` photon paths: photons / n*, within
         [1, most] and at most MAX_CHANGE times the last pass's. Held while nothing is measured."""
         k = self.last_camera_paths or 1
-        model = self._model(deposits_as_camera_work=True)
+        model = self._split_photon_side(self._model(deposits_as_camera_work=True), float(photons))
         best = self._optimum(model)
         if best is None:
             return k
-        target = photons / best
-        if self.bias_ratio > 0.0 and target > 1.0:
+        target = photons / best if best > 0.0 else math.inf     # best 0: no photon variance shared
+        if self.bias_ratio > 0.0 and 1.0 < target < math.inf:
             # The bias asks for more photons per unit of work, i.e. fewer camera paths.
             ks = np.geomspace(1.0, target, CANDIDATES)
             error = self._error_with_bias(model, float(photons), ks, float(photons), float(k))
@@ -267,6 +311,7 @@ class EffortBalance:
         return {"photons_next_pass": self.photons,
                 "bias_ratio": self.bias_ratio,
                 "camera_variance": shares[0] if shares else None,
+                "photon_correlation": self.photon_correlation(),
                 "photon_variance_per_photon": shares[1] if shares else None,
                 "camera_work_per_pass": self.sum_camera_work / self.observed if self.observed else None,
                 "segments_per_photon": self.sum_photon_work / self.sum_photons if self.sum_photons else None}

@@ -205,6 +205,7 @@ class Sppm(Method):
         self.estimate_last = f.scalar(ti.f64, n)    # per pixel: the last iteration's own estimate
         self.spread = f.scalar(ti.f64, n)           # per pixel: (this estimate - the last one)^2
         self.half_difference = f.scalar(ti.f64, n)  # per pixel: n (t_a - t_b)^2 / 4
+        self.half_difference_mp = f.scalar(ti.f64, n)   # the same per MP, averaged over the pixel's K
         self.deposits = f.scalar(ti.f64, n)         # per pixel: photons deposited into its MPs this pass
         # Twin camera paths (docs/effort.md): per pixel, V_c with its position held from its last
         # twin; 1 once a twin has reached another MP than its path (a delta choice: its V_c is
@@ -214,7 +215,7 @@ class Sppm(Method):
         self.camera_stochastic = f.scalar(ti.f64, n)
         self.camera_estimate = f.scalar(ti.f64, n)
         self.twin_unmatched = f.scalar(ti.f64, n)
-        self.effort_sums = f.scalar(ti.f64, 12)     # their sums, and the pass's counted work
+        self.effort_sums = f.scalar(ti.f64, 13)     # their sums, and the pass's counted work
         self.level_scale = f.scalar(ti.f64, self.n_acc)     # fixed point -> flux, per accumulator
         if self.uniform_accumulator:
             # Each accumulator's scale as an estimate by itself (level_scale holds them weighted),
@@ -334,7 +335,7 @@ class Sppm(Method):
             self.twin_pixels_unmatched += float(sums[11])
         self.effort.observe(n_p, spread / n, half / n, radius_sq / max(valid, 1.0),
                             camera_rays + k * n, segments, camera_paths=k,   # rays, and the grid over the MPs
-                            deposits=deposits,
+                            deposits=deposits, half_difference_mp=float(sums[12]) / n,
                             camera_held=float(sums[10]) / n if self.held_camera and self.iterations >= 1 else None)
         if self.balanced:
             self.photons_per_iteration = self.effort.next_photons()
@@ -523,6 +524,7 @@ class Sppm(Method):
             w_sep = ti.Matrix([[0.0] * 3] * 4, ti.f64)
             twin_difference = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             unmatched = 0
+            halves_sq = ti.f64(0.0)       # sum over MPs of their own photon-half differences, squared
             for s in range(camera_paths):
                 j = s * n + i
                 ld += self.mp_direct[j]
@@ -540,6 +542,8 @@ class Sppm(Method):
                     w = ti.cast(self.mp_W[j], ti.f64)
                     w_phi += w * phi
                     w_phi_odd += w * phi_odd
+                    halves_mp = lum.dot(2.0 * w * phi - 4.0 * w * phi_odd)
+                    halves_sq += halves_mp * halves_mp
                     if ti.static(self.balanced_radius):
                         phi_inner = ti.Vector([0.0, 0.0, 0.0], ti.f64)
                         for level in ti.static(range(self.n_acc)):
@@ -567,6 +571,7 @@ class Sppm(Method):
             inc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             inc_odd = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             chains, uniform = ti.f64(0.0), ti.f64(0.0)
+            self.half_difference_mp[i] = 0.0
             if valid > 0:
                 m /= ti.cast(valid, ti.f64)     # photons per MP: the radius follows photon density, not K
             if ti.static(self.balanced_radius):
@@ -580,6 +585,11 @@ class Sppm(Method):
                 w_phi /= k
                 inc = w_phi / (ti.f64(PI) * r * r)
                 inc_odd = w_phi_odd / k / (ti.f64(PI) * r * r)
+                # half_difference (below) for each MP alone, averaged over the pixel's K: the
+                # pixel's is the MPs' mean, so where their photon noises are independent (discs
+                # apart) it is 1/K of this, where they share their photons it is this
+                # (effort.py, EffortBalance.photon_correlation).
+                self.half_difference_mp[i] = halves_sq / (k * n_p * 4.0) / (ti.f64(PI) * r * r) ** 2
                 if ti.static(self.uniform_accumulator):
                     # the same even-odd differences for the chains and the uniform photons
                     # apart, each at its own scale (not weighted by its share)
@@ -683,7 +693,7 @@ class Sppm(Method):
         relative (--balance relmse): each pixel's terms weighted by 1 / (m^2 + eps), m its
         running estimate after `camera_paths` camera paths per pixel and `photons` photons in
         all, eps = (0.1 x the image's mean m)^2 (converge's relMSE)."""
-        sums = ti.Vector([0.0] * 10, ti.f64)
+        sums = ti.Vector([0.0] * 11, ti.f64)
         lum = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
         eps = ti.f64(0.0)
         if ti.static(relative):
@@ -699,6 +709,7 @@ class Sppm(Method):
                 weight = 1.0 / (m * m + eps)
             sums[0] += weight * self.spread[i]
             sums[1] += weight * self.half_difference[i]
+            sums[10] += weight * self.half_difference_mp[i]
             sums[8] += weight * self.camera_estimate[i]
             sums[9] += self.twin_unmatched[i]
             sums[4] += self.deposits[i]
@@ -720,6 +731,7 @@ class Sppm(Method):
             self.effort_sums[7 + k] = sums[5 + k]     # chains, uniform photons, product
         self.effort_sums[10] = sums[8]                # twins: V_c with positions held, pixels unmatched
         self.effort_sums[11] = sums[9]
+        self.effort_sums[12] = sums[10]               # half_difference per MP
         self.counters[2] = 0
         self.counters[3] = 0
 
