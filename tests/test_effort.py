@@ -464,6 +464,19 @@ def test_guided_camera_variance_auto_follows_what_sets_the_pass_length():
         assert not np.array_equal(auto, different) and k != k_other, (scene, k, k_other)
 
 
+def test_twins_variances_are_trimmed_where_they_steer_k():
+    """sppm keeps the plain mean of the twins' V_c (rare camera paths through glass are error
+    its photons cannot remove); the guided methods, whose K the twins steer, trim them as the
+    pairs' are (a plain mean raised the caustic's K and lost it: docs/effort.md, stop 55)."""
+    for method, trimmed in (("sppm", False), ("visibility", True), ("spatial-tf", True)):
+        p = Job(scene=str(SCENES / "cornell-box" / "scene.xml"), params={"res": "8"}, method=method, seed=1,
+                options={"camera_variance": "auto", **({"photons": "auto"} if method == "sppm" else {})}).prepare()
+        try:
+            assert p.method.effort.held_camera and p.method.effort.trim_camera == trimmed, method
+        finally:
+            p.release()
+
+
 def test_film_variance_follows_the_twins_model():
     """The model behind the twins' V_c (docs/effort.md, "Twin camera paths"): under stratified
     positions the film's variance over seeds after M passes is V_held / M + c V_pos M^-1.5

@@ -94,8 +94,9 @@ class GuidedPhotons(Sppm):
                # reach, so fewer points lengthen a pass; with twins K fell, and the held-out light
                # bay lost 14 % while the closet gained 11 % (15 s, seeds 0-3; docs/effort.md,
                # "Twin camera paths"). auto (twins only where K does not set the pass length)
-               # won the slatted window and lost light-gap and the Cornell box (docs/effort.md,
-               # "Twins where K does not set the pass length").
+               # wins the slatted window (noise 0.72x at 20 s) and leans 4-5 % the wrong way on
+               # the Cornell box and light-gap (docs/effort.md, "Photon noise shared by a
+               # pixel's points").
                "camera_variance": "pairs"}
     # Every step's uniform photon is also an estimate of its own, sppm's (an accumulator after
     # the levels'), joined to the chains' with the least-variance weight beta; the chains'
@@ -108,6 +109,10 @@ class GuidedPhotons(Sppm):
     # camera-side they would starve the camera passes: the effort balance chooses how many
     # camera paths per pixel share each photon pass (docs/effort.md).
     default_camera_paths = "auto"
+    # With twins (--camera-variance auto or twins) V_c is their trimmed mean, as the pairs' is:
+    # the plain mean kept the caustic's rare camera paths through glass and raised K, and auto
+    # lost the caustic 1.07-1.30x against pairs; trimmed 0.96x (docs/effort.md, stop 55).
+    trim_twin_variances = True
 
     def __init__(self, dscene, settings):
         if settings.options.get("photons") == "auto":

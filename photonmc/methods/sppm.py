@@ -86,6 +86,11 @@ class Sppm(Method):
                "effort_bias": False}
     RADIUS_RULES = ("progressive", "balanced")
     default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
+    # The twins' V_c estimates: their plain mean since the start (sppm: the caustic's rare
+    # camera paths to the lamp through glass are error its photons cannot remove, and the
+    # trimmed mean made it 1.49x fixed photons' RMSE) or the pairs' trimmed mean (the guided
+    # methods, whose K they steer; docs/effort.md, "Twins where K does not set the pass length").
+    trim_twin_variances = False
     # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the
     # pass's measurement points with their per-pass accumulators (up to MP_BUDGET points).
     TRANSIENT = ("grid", "mp_p", "mp_n", "mp_wo", "mp_W", "mp_bsdf", "mp_depth", "mp_valid", "mp_radius",
@@ -270,12 +275,9 @@ class Sppm(Method):
             self.effort = self._new_effort()
 
     def _new_effort(self) -> EffortBalance:
-        # With the positions held V_c's remaining spikes are camera error the film keeps (the
-        # caustic's rare paths to the lamp through glass, read at its stochastic pixels): the
-        # plain mean keeps them, where the trimmed one made the caustic 1.49x fixed photons'
-        # RMSE (docs/effort.md, "Twin camera paths").
+        # trim_twin_variances above: how the twins' V_c estimates are averaged.
         return EffortBalance(self.n_pixels, self.photons_per_iteration, self.alpha, held_camera=self.held_camera,
-                             trim_camera=not self.held_camera)
+                             trim_camera=not self.held_camera or self.trim_twin_variances)
 
     # -- the iteration -----------------------------------------------------------------
     def _iterate(self):
