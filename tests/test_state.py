@@ -79,15 +79,20 @@ def test_resume_continues_the_pixels_sobol_sequences(method, tmp_path):
 @pytest.mark.parametrize("method,options,chosen,half", [
     ("sppm", {"photons": "auto"}, "photons_per_iteration", 6),
     ("sppm", {"radius_rule": "balanced"}, "fast_passes", 24),
-    ("mbe", {"light_paths": 256, "camera_paths": "auto"}, "camera_paths", 5)])
+    ("mbe", {"light_paths": 256, "camera_paths": "auto"}, "camera_paths", 5),
+    ("visibility", {"photons": 512}, "camera_paths", 8)])
 def test_resume_of_a_balanced_render_equals_straight(tmp_path, method, options, chosen, half):
     """sppm --photons auto, mbe --camera-paths auto: the effort balance's history (and mbe's
     last estimate it compares with) is part of the state, as is sppm --radius-rule balanced's
     (its bias sums and the next pass's choice), so the resumed render makes the same
-    choices (photons per pass, camera subpaths per pixel) and gives the same image."""
+    choices (photons per pass, camera subpaths per pixel) and gives the same image. visibility:
+    its K from the balance, which by then has measured how much photon noise a pixel's points
+    share (effort.py, photon_correlation)."""
     j = Job(scene=CORNELL, params=SMALL, method=method, seed=3, options=options)
     straight = rendered(j, 2 * half)
     [saved] = state.load(state.save(tmp_path / "auto.state", [rendered(j, half)]))
+    if method == "visibility":
+        assert saved.plain["effort.correlation_terms"], "no pass of K >= 2 before the save"
     p, _ = resume(saved)
     for _ in range(half):
         p.method.iterate()
