@@ -69,13 +69,17 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           # Made after stop 54's measurements.
           "transom-slot": ("../tools/heldout/transom-slot.xml", "../../tools/heldout/transom-slot-64.exr",
                            {"res": "64"}),
+          # Made after stop 55's measurements.
+          "louvre-bay": ("../tools/heldout/louvre-bay.xml", "../../tools/heldout/louvre-bay-64.exr", {"res": "64"}),
           # Rooms of mbe's suite (tools/mbe_suite.sh), for A/B runs of vcm's and mbe's options.
           "slit-cabinet": ("../tools/heldout/slit-cabinet.xml", "../../tools/heldout/slit-cabinet-64.exr",
                            {"res": "64"}),
           "glass-table": ("../tools/heldout/glass-table.xml", "../../tools/heldout/glass-table-64.exr", {"res": "64"})}
 
 
-def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):
+def render_for(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, after_pass=None):
+    """`seconds` of rendering after a warm-up iteration (compilation excluded); after_pass(m)
+    is called after each pass. Returns (image, iterations, photons or chain steps per pass)."""
     path = REPO / "scenes" / scene
     job = Job(scene=str(path.resolve() if path.suffix == ".xml" else path / "scene.xml"), params=params, method=method, options=options,
               seed=seed)
@@ -87,10 +91,17 @@ def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, 
         t0 = time.perf_counter()
         while time.perf_counter() - t0 < seconds:
             m.iterate()
+            if after_pass is not None:
+                after_pass(m)
         # photons per pass (sppm and the guided methods) or chain steps per pass (mbe)
-        return rmse(m.image(), ref), (m.iterations, getattr(m, "photons_per_iteration", getattr(m, "steps_last", None)))
+        return m.image(), m.iterations, getattr(m, "photons_per_iteration", getattr(m, "steps_last", None))
     finally:
         p.release()
+
+
+def rmse_after(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, ref):
+    image, iterations, per_pass = render_for(scene, params, method, options, seed, seconds)
+    return rmse(image, ref), (iterations, per_pass)
 
 
 def equal_time_pair(name: str, method: str, options: dict, seeds, seconds: float):

@@ -19,35 +19,23 @@ Used for docs/effort.md, "Camera paths weighed alike".
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from effort_study import REPO, SCENES, Job, read_image  # noqa: E402
+from effort_study import REPO, SCENES, read_image, render_for  # noqa: E402
 from photonmc.metrics import luminance  # noqa: E402
 
 
 def render(name: str, method: str, options: dict, seed: int, seconds: float):
     """(image, iterations, K of each pass) of `seconds` of rendering after a warm-up."""
     scene, _, params = SCENES[name]
-    path = REPO / "scenes" / scene
-    job = Job(scene=str(path.resolve() if path.suffix == ".xml" else path / "scene.xml"), params=dict(params),
-              method=method, options=dict(options), seed=seed)
-    p = job.prepare()
-    try:
-        m = p.method
-        m.warm_up()
-        m.reset()
-        ks, t0 = [], time.perf_counter()
-        while time.perf_counter() - t0 < seconds:
-            m.iterate()
-            ks.append(getattr(m, "camera_paths", 1))
-        return np.asarray(m.image(), np.float64), m.iterations, ks
-    finally:
-        p.release()
+    ks = []
+    image, iterations, _ = render_for(scene, dict(params), method, dict(options), seed, seconds,
+                                      after_pass=lambda m: ks.append(getattr(m, "camera_paths", 1)))
+    return np.asarray(image, np.float64), iterations, ks
 
 
 def main():

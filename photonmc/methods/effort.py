@@ -210,8 +210,6 @@ class EffortBalance:
             return model
         v_c, v_p, camera_work, photon_work = model
         v_mp = math.fsum(self.photon_variances_mp_r2) / len(self.photon_variances_mp_r2) / self.radius_sq
-        if rho <= 0.0:
-            return v_c + v_mp / photons, 0.0, camera_work, photon_work
         return v_c + (1.0 - rho) * v_mp / photons, rho * v_mp, camera_work, photon_work
 
     def _position_share(self, v_held: float) -> float:
