@@ -400,6 +400,50 @@ def _chain_bias_after(rho, passes, beta=0.0, noise=25.0, pixels=1000, variance_s
     return bias, lengths
 
 
+def test_batch_means_weigh_passes_by_their_camera_subpaths():
+    """Chain passes of K camera subpaths per pixel (K from 1 to 16), each with variance
+    sigma^2 / K (the camera side alone): the weighted batch means give sigma^2 per unit weight,
+    and a pass of the mean K, sigma^2 / mean K; the film of those passes weighed by K has
+    variance sigma^2 / sum K, which is what the precision passes / pass_variance() says."""
+    from photonmc.methods.pass_choice import BatchMeansVariance
+    rng = np.random.default_rng(8)
+    pixels, sigma2 = 4000, 3.0
+    measured = BatchMeansVariance(pixels)
+    k_all = []
+    for batch in range(48):
+        ks = rng.choice([1, 2, 4, 8, 16], size=BatchMeansVariance.BATCH)
+        total = sum(k * rng.normal(scale=math.sqrt(sigma2 / k), size=pixels) for k in ks)
+        measured.observe_batch(total, float(ks.sum()))
+        k_all.extend(ks)
+    assert measured.unit_variance() == pytest.approx(sigma2, rel=0.05)
+    assert measured.pass_variance() == pytest.approx(sigma2 / np.mean(k_all), rel=0.05)
+
+
+def test_chain_passes_join_the_film_at_the_weight_of_their_camera_subpaths(write_scene):
+    """Chain passes of K = 1, 3, 8, 2, 5 camera subpaths per pixel in the furnace: each joins
+    the film at weight K (samples_per_pixel 19, 5 passes), and each pass's estimate, its
+    share of the film's sum over K, is the analytic radiance: a pass added unweighted would
+    read 1 / K of it."""
+    scene = load_scene(write_scene(furnace_xml("sphere")))
+    p = prepare(scene, method="mbe", seed=3, max_depth=3, options={"vcm_passes": "off"})
+    m = p.method
+    sequence = iter([1, 3, 8, 2, 5])
+    m.pass_choice.chain_pass_k = lambda k: next(sequence)
+    expected = furnace_expectation(3)
+    last = np.zeros((16, 16, 3))
+    for k in (1, 3, 8, 2, 5):
+        m.iterate()
+        total = m.film.film.sum.to_numpy()
+        estimate = luminance((total - last) / k)
+        last = total
+        assert abs(estimate.mean() - expected) < 5 * estimate.std() / math.sqrt(estimate.size) + 2e-3 * expected, \
+            (k, estimate.mean(), expected)
+    film = m.film.film
+    assert (film.samples_per_pixel, film.passes, film.weight_sq_sum) == (19, 5, 103)
+    np.testing.assert_allclose(m.image(), last / 19)
+    p.release()
+
+
 def test_the_chains_bias_is_measured_against_the_uniform_proposals():
     """Unbiased chains never lengthen their passes (a significant mean alone is not enough:
     the squared bias it implies must outweigh the film's variance); a bias is measured
@@ -552,14 +596,15 @@ def test_the_image_combines_the_two_films_by_their_measured_variances(write_scen
         chain, vcm = m.film.film, m.independent.film.film
         films = m.method_stats()["films"]
         print(weights, films)
-        assert (films["chain_passes"], films["vcm_passes"]) == (chain.samples_per_pixel, vcm.samples_per_pixel) == (80, 40)
+        assert (films["chain_passes"], films["vcm_passes"]) == (chain.passes, vcm.passes) == (80, 40)
+        assert chain.samples_per_pixel == films["chain_camera_paths_per_pixel"] == 320   # weight 4 per pass
         w_c, w_v = m.film_weights()
         assert w_c + w_v == pytest.approx(1.0) and films["chain_weight"] == w_c
-        assert np.allclose(m.image(), w_c * chain.sum.to_numpy() / 80 + w_v * vcm.sum.to_numpy() / 40,
+        assert np.allclose(m.image(), w_c * chain.sum.to_numpy() / 320 + w_v * vcm.sum.to_numpy() / 40,
                            rtol=1e-12, atol=0)
         if weights == "equal":
             assert w_c == pytest.approx(80 / 120)
-            assert np.allclose(m.image(), (chain.sum.to_numpy() + vcm.sum.to_numpy()) / 120, rtol=1e-12, atol=0)
+            assert np.allclose(m.image(), (chain.sum.to_numpy() / 4 + vcm.sum.to_numpy()) / 120, rtol=1e-12, atol=0)
         else:       # both variances measured, and they differ by more than their errors
             ratio = films["log_vcm_over_chain_variance_shrunk"]
             assert ratio != 0.0 and w_c / w_v == pytest.approx(2.0 * math.exp(ratio))

@@ -22,7 +22,8 @@ the iteration's stored camera subpaths. Each iteration:
    F(u) w / (b_l (T_V/b'_V + T_C/b'_C)) times b_l n / N_l (balance heuristic between the
    chains, b' the previous iteration's normalisations, N_l the level's recorded weight);
 4. the chains' splats are kept per level, scaled by the pass's b_l at its end and added to
-   the frame, which becomes one sample of every pixel (SplatFilm);
+   the frame, which becomes one sample of every pixel (SplatFilm) of weight K, the pass's
+   camera subpaths per pixel;
 5. the chains' estimate of the light side is set against the uniform proposals' (plain Monte
    Carlo, unbiased): where the chains' start-up bias has come to outweigh the film's noise,
    the chain passes double in length (methods/chain_bias.py).
@@ -182,6 +183,9 @@ class Mbe(Vcm):
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
+    # A chain pass joins the film at the weight of its K camera subpaths per pixel (film.py;
+    # docs/mbe.md, "Chain passes weighed by their camera subpaths")
+    weighted_film = True
 
     def __init__(self, dscene, settings):
         # The camera subpaths per pixel size the vertex store, which Vcm.__init__ allocates.
@@ -344,6 +348,7 @@ class Mbe(Vcm):
                                       measured=self.options["vcm_passes"] == "measured")
         self.chain_batches = BatchMeansVariance(self.n_pixels)
         self.batch_passes = 0
+        self.batch_weight = 0           # the batch's camera subpaths per pixel, summed
         # the chains' own bias against the uniform proposals', and the pass length it asks for
         self.chain_bias = ChainBias()
         # the vcm passes' light subpaths, measured as vcm's own are (methods/light_balance.py)
@@ -514,15 +519,25 @@ class Mbe(Vcm):
         # The light side: beta x the uniform proposals' estimate + (1 - beta) x the chains'.
         frame_scales, sum_scales, unweighted, uniform_halves, uniform_counts, beta = \
             self._pass_scales(steps, b, scale, tallies)
+        # The pass joins the film at the weight of its K camera subpaths per pixel: weighed as
+        # one sample whatever K, the passes of the balance's first K (1, 1, 2, 4, ...) and the
+        # measurement pairs at K = 1 (pass_choice.MEASURE_BAND) weighed up to K times more per
+        # camera subpath than the passes at the balance's K. For the camera side that costs
+        # sum(1 / K) sum(K) / P^2 of the variance: 1.30x, 1.70x and 3.06x in the slit cabinet,
+        # the Cornell box and the strip lights at 30 s (docs/mbe.md, "Chain passes weighed by
+        # their camera subpaths"). Where a pass's variance is all light side the weights cost
+        # sum(K^2) P / sum(K)^2 (a few per cent once K has settled).
         sums = self._end_pass(*frame_scales, *sum_scales, *unweighted, self.relative_balance,
-                              max(self.film.film.samples_per_pixel, 0))
-        self.film.count_flushed()
-        # the chain passes' batch means (pass_choice.BatchMeansVariance)
+                              max(self.film.film.samples_per_pixel, 0), float(k))
+        self.film.count_flushed(k)
+        # the chain passes' batch means (pass_choice.BatchMeansVariance), weighted as the film
         self.batch_passes += 1
+        self.batch_weight += k
         if self.batch_passes == BatchMeansVariance.BATCH:
-            self.chain_batches.observe_batch(self.batch_sum.to_numpy())
+            self.chain_batches.observe_batch(self.batch_sum.to_numpy(), self.batch_weight)
             self.batch_sum.fill(0.0)
             self.batch_passes = 0
+            self.batch_weight = 0
         if unweighted[2] > 0.0:         # the pass had uniform proposals
             self._judge_chain_bias(beta, sums)
         self._observe_effort(steps, k, n, sums, beta, uniform_halves, uniform_counts, tallies["extra"][0])
@@ -546,12 +561,13 @@ class Mbe(Vcm):
         measurements made of passes of the old length (the batch means, the work they are set
         against) start again."""
         self.chain_bias.observe(beta, float(sums[4]), float(sums[5]))
-        variance = self.chain_batches.pass_variance()
-        if self.chain_bias.lengthen(self.pass_choice.chain_passes + 1,
+        variance = self._chain_film_pass_variance()
+        if self.chain_bias.lengthen(self.film.film.passes,
                                     None if variance is None else variance * self.n_pixels, float(sums[6])):
             self.chain_batches = BatchMeansVariance(self.n_pixels)
             self.batch_sum.fill(0.0)
             self.batch_passes = 0
+            self.batch_weight = 0
             self.pass_choice.restart_made_work()
 
     def _pass_scales(self, steps: int, b, scale, tallies):
@@ -639,14 +655,15 @@ class Mbe(Vcm):
     def _end_pass(self, s0: ti.f64, s1: ti.f64, su: ti.f64, full0: ti.f64, full1: ti.f64, full_u: ti.f64,
                   even0: ti.f64, even1: ti.f64, even_u: ti.f64, odd0: ti.f64, odd1: ti.f64, odd_u: ti.f64,
                   chains0: ti.f64, chains1: ti.f64, uniform: ti.f64,
-                  relative: ti.template(), samples: ti.i32) -> ti.types.vector(7, ti.f64):
+                  relative: ti.template(), samples: ti.i32, pass_weight: ti.f64) -> ti.types.vector(7, ti.f64):
         """The pass's end in one launch and one sweep over the pixels (each launch costs
         0.1-0.3 ms on the host, a few per cent of a 64x64 iteration). At each pixel, first its
         terms of the effort sums, before the light frames join the frame: (this iteration's
         estimate - the last one's)^2, (t_even - t_odd)^2 for the chains and for the uniform
         proposals, and the product of the two differences, in luminance; then the chains'
         splats at their levels' final scales (s0, s1) and the uniform proposals' (su) join the
-        frame, which joins the film as one sample of the pixel. The sums are added per row,
+        frame, which joins the film as one sample of the pixel, of the pass's weight (its K;
+        `samples` is the film's weight so far). The sums are added per row,
         then over rows in a fixed order, so that K and beta, and so the image, do not depend
         on thread timing. Then the chains' light side and the uniform proposals', each at its
         full weight (chains0, chains1, uniform), and the film's squared pixel values so far,
@@ -685,7 +702,7 @@ class Mbe(Vcm):
                 i = y * w + x
                 d = e - self.last_estimate[i]
                 self.last_estimate[i] = e
-                self.batch_sum[i] += e
+                self.batch_sum[i] += pass_weight * e
                 h = (f0e * even0 + f1e * even1 - f0o * odd0 - f1o * odd1).dot(y_weights)
                 hu = (ue * even_u - uo * odd_u).dot(y_weights)
                 row += weight * ti.Vector([d * d, h * h, hu * hu, h * hu, 0.0, 0.0, 0.0], ti.f64)
@@ -702,7 +719,7 @@ class Mbe(Vcm):
                     self.light_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
                 for frame in ti.static(range(2)):
                     self.uniform_frame[frame, y, x] = ti.Vector([0, 0, 0], ti.i64)
-                self.film.flush_pixel(y, x)
+                self.film.flush_pixel_weighted(y, x, pass_weight)
             self.row_sums[y] = row
         sums = ti.Vector([0.0] * 7, ti.f64)
         ti.loop_config(serialize=True)
@@ -943,8 +960,18 @@ class Mbe(Vcm):
         their errors (methods/film_weights.py); 0 under --film-weights equal."""
         if self.options["film_weights"] != "variance":
             return 0.0
-        return shrunk_log_ratio(self.chain_batches.pass_variance(), self.chain_batches.relative_error(),
+        return shrunk_log_ratio(self._chain_film_pass_variance(), self.chain_batches.relative_error(),
                                 *self._vcm_pass_variance())
+
+    def _chain_film_pass_variance(self) -> float | None:
+        """The variance of a chain pass of the film's mean K (batch means' sigma^2 / (sum K /
+        passes)): the film's passes over it are its precision, sum K / sigma^2, which is what
+        its weight against the vcm passes' film and ChainBias's bias are set against."""
+        unit = self.chain_batches.unit_variance()
+        film = self.film.film
+        if unit is None or film.samples_per_pixel <= 0:
+            return None
+        return unit * film.passes / film.samples_per_pixel
 
     def _vcm_pass_variance(self) -> tuple[float | None, float | None]:
         """A vcm pass's variance as it counts in its film, and its relative standard error:
@@ -958,8 +985,7 @@ class Mbe(Vcm):
         """The weights of the chain passes' film and the vcm passes' in the image."""
         if self.independent is None:
             return 1.0, 0.0
-        return film_weights(self.film.film.samples_per_pixel, self.independent.film.film.samples_per_pixel,
-                            self._film_log_ratio())
+        return film_weights(self.film.film.passes, self.independent.film.film.passes, self._film_log_ratio())
 
     def _films(self):
         """(weight, film) of each film that has a weight in the image."""
@@ -973,9 +999,10 @@ class Mbe(Vcm):
         return np.sqrt(sum((w * f.standard_error()) ** 2 for w, f in self._films()))
 
     def _film_stats(self) -> dict:
-        n_c = self.film.film.samples_per_pixel
-        n_v = self.independent.film.film.samples_per_pixel if self.independent is not None else 0
-        return {"chain_passes": n_c, "vcm_passes": n_v, "chain_weight": self.film_weights()[0],
+        n_c = self.film.film.passes
+        n_v = self.independent.film.film.passes if self.independent is not None else 0
+        return {"chain_passes": n_c, "chain_camera_paths_per_pixel": self.film.film.samples_per_pixel,
+                "vcm_passes": n_v, "chain_weight": self.film_weights()[0],
                 "chain_weight_by_count": count_weights(n_c, n_v)[0],
                 "log_vcm_over_chain_variance_shrunk": self._film_log_ratio(), "weights": self.options["film_weights"],
                 # the vcm passes' merging bias (docs/vcm.md, "Merging's bias, estimated"); the

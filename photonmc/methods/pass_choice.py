@@ -106,7 +106,8 @@ MIN_PASSES_FOR_BALANCE = 16
 # variance: pairs only where the balance's K is at most MEASURE_MAX_K, and only after
 # MEASURE_AFTER chain passes, once K has settled (it moves by at most 2x a pass). Measured
 # without those two limits, the Cornell box (K 14) made 8 passes at K = 1 while its K rose,
-# and mbe went from 0.75x vcm's RMSE to 0.86x.
+# and mbe went from 0.75x vcm's RMSE to 0.86x. (Since stop 56 a chain pass joins the film
+# at the weight of its K, so a pair at K = 1 no longer costs that; the limits were kept.)
 # Until vcm passes are measured (light_balance.MEASURED_AFTER variance estimates, from twice
 # as many passes), where chain passes are predicted to win at K <= MEASURE_MAX_K, vcm passes
 # take this share of the work: the prediction of a vcm pass's variance from chain passes
@@ -137,27 +138,42 @@ class BatchMeansVariance:
     batches of BATCH consecutive chain passes are nearly independent: BATCH x their variance
     (per pixel, over batches; mean over pixels) is the variance per pass with the correlation
     included (the batch-means estimator of MCMC output analysis). Measured where the effort
-    balance's prediction V_c / K + V_p / n was low: the caustic (docs/mbe.md, stop 40)."""
+    balance's prediction V_c / K + V_p / n was low: the caustic (docs/mbe.md, stop 40).
+
+    The film weighs each pass by its K camera subpaths per pixel (film.py), and so does a
+    batch: its mean is sum K F / sum K, of variance sigma^2 / W_b for W_b = sum K, where sigma^2
+    is the variance per unit weight. Weighted by W_b, sum W_b (M_b - M)^2 / (B - 1) estimates
+    sigma^2 (M the W-weighted mean over B batches); with every K alike it is BATCH K x the
+    variance of the batch means."""
     BATCH = 8
     AFTER = 8           # batches before the variance is reported
 
     def __init__(self, n_pixels: int):
         self.batches = 0
-        self.mean = np.zeros(n_pixels)      # per pixel, over batches (Welford)
+        self.weight = 0.0                   # the batches' weights summed
+        self.mean = np.zeros(n_pixels)      # per pixel, over batches (weighted Welford: West 1979)
         self.m2 = np.zeros(n_pixels)
 
-    def observe_batch(self, batch_sum) -> None:
-        """The per-pixel luminance summed over BATCH consecutive chain passes."""
-        batch_mean = batch_sum / self.BATCH
+    def observe_batch(self, batch_sum, weight: float = BATCH) -> None:
+        """The per-pixel luminance summed over BATCH consecutive chain passes, each times its
+        weight, and the weights summed (BATCH where every pass weighs 1)."""
+        batch_mean = batch_sum / weight
         self.batches += 1
+        self.weight += weight
         delta = batch_mean - self.mean
-        self.mean += delta / self.batches
-        self.m2 += delta * (batch_mean - self.mean)
+        self.mean += delta * (weight / self.weight)
+        self.m2 += weight * delta * (batch_mean - self.mean)
 
-    def pass_variance(self) -> float | None:
+    def unit_variance(self) -> float | None:
+        """sigma^2: the variance of a pass of weight 1 (mean over pixels)."""
         if self.batches < self.AFTER:
             return None
-        return float(self.BATCH * (self.m2 / (self.batches - 1)).mean())
+        return float((self.m2 / (self.batches - 1)).mean())
+
+    def pass_variance(self) -> float | None:
+        """The variance of a pass of the mean weight of those measured: sigma^2 / mean K."""
+        unit = self.unit_variance()
+        return None if unit is None else unit * self.BATCH * self.batches / self.weight
 
     def relative_error(self) -> float | None:
         """The standard error of pass_variance() over its value, sqrt(2 / (batches - 1)):

@@ -40,7 +40,7 @@ class PathTracer(Method):
 
     def _iterate(self):
         self._trace_pixels(self.seed_u32, self.iteration_index, self.max_depth)
-        self.film.samples_per_pixel += 1
+        self.film.count_samples()
         self.work_done += self.dscene.width * self.dscene.height
 
     def image(self):

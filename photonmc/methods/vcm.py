@@ -71,6 +71,8 @@ class Vcm(Method):
     # What trace_photon hands this visitor: every non-delta vertex, with the MIS partial sums.
     visits_from_segment = 1
     with_mis = True
+    # Its film takes each pass at the weight of its camera subpaths per pixel (film.py): one here
+    weighted_film = False
     # Each pass also merges with the inner half of the disc's area, for the estimate of
     # merging's bias (merging_bias in --stats). mbe's camera side merges nothing.
     measures_merging_bias = True
@@ -141,7 +143,7 @@ class Vcm(Method):
         f.finalize()
         self.fields = f
         radiance = dscene.scene.emitter_radiance
-        self.film = SplatFilm(w, h, float(np.max(radiance)) if len(radiance) else 1.0)
+        self.film = SplatFilm(w, h, float(np.max(radiance)) if len(radiance) else 1.0, self.weighted_film)
         capacity = opts.get("light_vertex_capacity") or self._stored_paths() * min(self.max_light_segments,
                                                                                   INITIAL_VERTICES_PER_PATH)
         self.store = self.grid = None
