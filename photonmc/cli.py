@@ -147,6 +147,10 @@ def _add_guiding_options(parser):
     g.add_argument("--mutation", choices=["joint", "blocks"],
                    help="joint (default): a mutation perturbs every coordinate with one width; blocks: one "
                         "block (light, bounce 1, bounce 2, the rest) at a time, each with its own width")
+    g.add_argument("--pss-guide", type=int, choices=[0, 1, 2, 3],
+                   help="pairs of a photon path's first coordinates warped by a learned guide: 1 the emission "
+                        "direction, 2 and the first bounce's, 3 and the light choice (docs/guiding.md, "
+                        "'A learned warp of the first coordinates'); default 0")
     g.add_argument("--path-target", choices=["max", "sum"],
                    help="spatial-tf: a path's target is the max (default) or sum of the importance of the points it hits")
     g.add_argument("--spatial-levels", type=int, choices=[2, 3],
@@ -218,7 +222,7 @@ def _method_options(args) -> dict:
             "mutation": args.mutation, "warm_start": args.warm_start,
             "balance": args.balance, "uniform_weight": args.uniform_weight, "vcm_passes": args.vcm_passes,
             "film_weights": args.film_weights, "pixel_samples": args.pixel_samples,
-            "camera_variance": args.camera_variance}
+            "camera_variance": args.camera_variance, "pss_guide": args.pss_guide}
 
 
 def _seed_list(text: str) -> list[int]:

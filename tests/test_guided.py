@@ -32,10 +32,11 @@ def render(scene, method, iterations, seed=0, max_depth=None, **options):
                                             ("spatial-tf", {"warm_start": True, "ladder_burn_in": 0.25}),
                                             ("visibility", {"uniform_weight": 1.0}),
                                             ("spatial-tf", {"uniform_weight": 1.0}),
-                                            ("spatial-tf", {"spatial_levels": 2})],
+                                            ("spatial-tf", {"spatial_levels": 2}),
+                                            ("visibility", {"pss_guide": 3})],
                          ids=["visibility", "visibility-suffix-moves", "visibility-block-moves", "spatial-tf",
                               "spatial-tf-expected-values", "spatial-tf-warm-start", "visibility-uniform-photons",
-                              "spatial-tf-uniform-photons", "spatial-tf-two-levels"])
+                              "spatial-tf-uniform-photons", "spatial-tf-two-levels", "visibility-pss-guide"])
 def test_sphere_furnace(write_scene, method, options):
     """Inside an emitting diffuse sphere the answer is analytic and SPPM's density estimate has
     no blur bias: the Markov-chain estimators must hit it within noise. (Most photon paths are
@@ -52,6 +53,7 @@ def test_sphere_furnace(write_scene, method, options):
     assert r.stats["levels"][0]["mutations"] > 0
     assert (r.stats["levels"][0]["suffix_moves"] > 0) == ("suffix_mutation" in options)
     assert (r.stats["levels"][0]["block_theta"] is not None) == ("mutation" in options)
+    assert (r.stats["pss_guide_updates"] > 0) == ("pss_guide" in options)
 
 
 def _open_box(write_scene, res=16):

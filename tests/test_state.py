@@ -436,3 +436,17 @@ def test_api_iterate_on_workers_shows_the_merged_image(ray_cluster):
     assert [f.iteration for f in frames][-1] == 4
     assert frames[-1].stats["renders"] == 2 and frames[-1].stats["iterations_per_render"] == [2, 2]
     assert frames[-1].image.shape == (16, 16, 3) and frames[-1].image.mean() > 0
+
+
+def test_resume_of_a_learned_warp_equals_straight(tmp_path):
+    """visibility --pss-guide 2: the warp's learned counts (per ladder) and its tables are part
+    of the state, so a render saved after the warp has been learned resumes to the same image."""
+    j = Job(scene=CORNELL, params=SMALL, method="visibility", seed=3, options={"photons": 512, "pss_guide": 2})
+    straight = rendered(j, 8)
+    [saved] = state.load(state.save(tmp_path / "warp.state", [rendered(j, 4)]))
+    assert saved.plain["pss_guide.updates"] > 0, "the warp was not learned before the save"
+    p, _ = resume(saved)
+    for _ in range(4):
+        p.method.iterate()
+    assert np.array_equal(p.method.image(), straight.image)
+    p.release()

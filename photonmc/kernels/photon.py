@@ -42,6 +42,10 @@ def photon_segments(dims: ti.i32) -> ti.i32:
     return 1 + (dims - LIGHT_DIMS) // BOUNCE_DIMS
 
 
+def _guided(visitor) -> bool:
+    return getattr(visitor, "pss_guide", None) is not None
+
+
 @ti.func
 def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.template(), vkey, max_segments: ti.i32):
     """Trace one photon (light subpath); returns (1 if the visitor used any vertex, coordinates read).
@@ -53,10 +57,22 @@ def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.temp
     `visit(vkey, x, n, wi, beta, segments)`."""
     used = 0
     dims = LIGHT_DIMS
-    em = sc.emit(source.get(key, 0), source.get(key, 1), source.get(key, 2), source.get(key, 3), source.get(key, 4))
+    # A visitor with a primary-sample-space guide (kernels/pss_guide.py) reads its paths
+    # through the guide's warp, the photon's power divided by the warp's density.
+    c = ti.Vector([source.get(key, 0), source.get(key, 1), source.get(key, 2), source.get(key, 3),
+                   source.get(key, 4)])
+    inv_q = 1.0
+    if ti.static(_guided(visitor)):
+        for k in ti.static(range(visitor.pss_guide.n_pairs)):
+            if ti.static(visitor.pss_guide.dims[k][1] < LIGHT_DIMS):
+                x, y, q = visitor.pss_guide.warp(k, c[visitor.pss_guide.dims[k][0]], c[visitor.pss_guide.dims[k][1]])
+                c[visitor.pss_guide.dims[k][0]] = x
+                c[visitor.pss_guide.dims[k][1]] = y
+                inv_q /= q
+    em = sc.emit(c[0], c[1], c[2], c[3], c[4])
     d = em.d
     # Power carried: Le cos / emission_pdf_w, with emission_pdf_w = pdf_a cos/pi.
-    beta = em.radiance * (math.pi / em.direct_pdf_a)
+    beta = em.radiance * (math.pi / em.direct_pdf_a) * inv_q
     o = sc.spawn(em.p, em.n, d)
     prev_p = em.p
     m = vcm_mis.SubpathMis(dvcm=0.0, dvc=0.0, dvm=0.0)
@@ -92,8 +108,16 @@ def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.temp
         base = LIGHT_DIMS + BOUNCE_DIMS * (segments - 1)
         dims = base + BOUNCE_DIMS
         f1, f2 = onb(n)
-        bs = sc.bsdf_sample(b, to_local(wi, f1, f2, n), source.get(key, base), source.get(key, base + 1),
-                            source.get(key, base + 2), False)
+        s0, s1 = source.get(key, base), source.get(key, base + 1)
+        inv_qb = 1.0
+        if ti.static(_guided(visitor)):
+            for k in ti.static(range(visitor.pss_guide.n_pairs)):
+                if ti.static(visitor.pss_guide.dims[k][0] >= LIGHT_DIMS):
+                    if base == visitor.pss_guide.dims[k][0]:
+                        x, y, qb = visitor.pss_guide.warp(k, s0, s1)
+                        s0, s1 = x, y
+                        inv_qb = 1.0 / qb
+        bs = sc.bsdf_sample(b, to_local(wi, f1, f2, n), s0, s1, source.get(key, base + 2), False)
         if not bs.ok:
             break
         # Roulette by the material's continuation probability (its albedo: the photon's power
@@ -101,7 +125,7 @@ def trace_photon(sc: ti.template(), source: ti.template(), key, visitor: ti.temp
         q = sc.bsdf_continuation(b)
         if source.get(key, base + 3) >= q:
             break
-        beta *= bs.weight / q
+        beta *= bs.weight / q * inv_qb
         if ti.static(visitor.with_mis):
             vcm_mis.after_scatter(m, bs.delta, bs.wi.z, bs.pdf_fwd_w * q, bs.pdf_rev_w * q, visitor.mis_constants())
         d = to_world(bs.wi, f1, f2, n)

@@ -43,6 +43,8 @@ from ..kernels.mcmc import (
     ChainPool,
 )
 from ..kernels.photon import BOUNCE_DIMS, LIGHT_DIMS, dimensions, photon_segments, trace_photon
+from ..kernels.pss_guide import PAIRS, PssGuide
+from ..kernels.sampling import luminance
 from .clusters import UNKNOWN, HitDensityClusters
 from .effort import UniformWeight, uniform_weight_option
 from .sppm import FIXED_ONE, Sppm
@@ -97,7 +99,10 @@ class GuidedPhotons(Sppm):
                # wins the slatted window (noise 0.72x at 20 s) and leans 4-5 % the wrong way on
                # the Cornell box and light-gap (docs/effort.md, "Photon noise shared by a
                # pixel's points").
-               "camera_variance": "pairs"}
+               "camera_variance": "pairs",
+               # Pairs of primary-sample coordinates warped by a learned guide (0: none;
+               # kernels/pss_guide.py, docs/guiding.md "A learned warp of the first coordinates").
+               "pss_guide": 0}
     # Every step's uniform photon is also an estimate of its own, sppm's (an accumulator after
     # the levels'), joined to the chains' with the least-variance weight beta; the chains'
     # mutations are made with probability 1 - beta (at least MIN_MUTATION): where uniform
@@ -159,6 +164,13 @@ class GuidedPhotons(Sppm):
             raise SettingsError(f"{self.name} has one chain per ladder: --warm-start and ladder_burn_in are for "
                                 f"the upper levels of spatial-tf's ladders (and mbe's --warm-start)")
         uniform_weight_option(opts["uniform_weight"])     # checked here, used from _reset_guided
+        n_pairs = opts["pss_guide"]
+        if isinstance(n_pairs, bool) or str(n_pairs) not in [str(k) for k in range(len(PAIRS) + 1)]:
+            raise SettingsError(f"--pss-guide is the number of coordinate pairs to warp, 0 to {len(PAIRS)}, "
+                                f"got {n_pairs!r}")
+        # trace_photon reads the warp through this attribute (None: plain primary samples).
+        self.pss_guide = PssGuide(int(n_pairs), self.n_chains, self.name) if int(n_pairs) > 0 else None
+        self.guided_pss = self.pss_guide is not None
         self.pool = ChainPool(self.n_chains, self.n_levels, dims, self.drop_failures, self.expected_values,
                               burn_in=burn_in if self.n_levels > 1 else 0.0,
                               suffix_mutation=self.suffix_mutation, suffix_starts=starts, block_starts=blocks,
@@ -172,6 +184,8 @@ class GuidedPhotons(Sppm):
         self.hit_weight = f.vector(L, ti.f32, c)
         self.b_mis = f.scalar(ti.f32, L)              # previous pass's normalisations, for MIS only
         self.paths_traced = f.scalar(ti.i64, ())
+        if self.guided_pss:
+            self.guide_contribution = f.scalar(ti.f64, c)     # a uniform photon's deposits, for the guide
         # Vertex lists: a path's photon vertices (those trace_photon visits) depend on its
         # coordinates alone, not on the pass's MPs, so the list a proposal's probe records is
         # the one its deposits need, in this pass and later ones. List l of slot s is
@@ -209,11 +223,15 @@ class GuidedPhotons(Sppm):
     def release(self):
         self.pool.release()
         self.guide_fields.release()
+        if self.pss_guide is not None:
+            self.pss_guide.release()
         super().release()
 
     def _reset(self):
         super()._reset()
         self.pool.reset()
+        if self.pss_guide is not None:
+            self.pss_guide.reset()
         self._reset_guided()
 
     def _reset_guided(self):
@@ -242,6 +260,8 @@ class GuidedPhotons(Sppm):
         self.visit_mode[vkey] = mode
         if mode == DEPOSIT:
             self._set_deposit_weights(vkey, w, t)
+            if ti.static(self.guided_pss):
+                self.guide_contribution[vkey] = 0.0
         self.target_scratch[vkey] = ti.Vector([0.0] * self.n_levels)
         dims = 0
         kept = -1
@@ -263,6 +283,11 @@ class GuidedPhotons(Sppm):
                 self.recording_list[vkey] = -1
             ti.atomic_add(self.paths_traced[None], 1)
             ti.atomic_add(self.counters[3], photon_segments(dims))
+        if ti.static(self.guided_pss):
+            # A visible uniform proposal, deposited: a draw of the visible set in v, which the
+            # guide learns from at what it brought to the image (its deposits' W Phi / R^2).
+            if mode == DEPOSIT and w[ti.static(self.n_levels)] > 0.0:
+                self.pss_guide.learn(source, key, vkey, self.guide_contribution[vkey])
         return self.target_scratch[vkey], dims
 
     @ti.func
@@ -371,6 +396,10 @@ class GuidedPhotons(Sppm):
                             t[top] = ti.max(t[top], self.importance[j])
                 elif self.deposit_at(j, wi, beta, fw, vkey & 1, self.in_inner_disc(j, x)):
                     hit = 1
+                    if ti.static(self.guided_pss):
+                        if fw[ti.static(self.n_levels)] > 0.0:
+                            r = self.mp_radius[j]
+                            self.guide_contribution[vkey] += luminance(self.mp_W[j] * beta) / (r * r)
                     if ti.static(self.n_levels > 1):
                         if j < ti.static(self.n_pixels):     # the statistics read the first camera path's MPs only
                             for level in ti.static(range(self.n_levels)):
@@ -393,7 +422,8 @@ class GuidedPhotons(Sppm):
         n_p = self._steps_this_pass()
         self._measurement_points(it)
         self._prepare_targets()
-        tallies = self.pool.run_pass(self, self.seed_u32, it, n_p)
+        guide = self.pss_guide
+        tallies = self.pool.run_pass(self, self.seed_u32, it, n_p, extra=guide.readable() if guide else ())
         b = self.pool.normalisations(tallies)
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * n_p / np.maximum(recorded, 1e-300), 0.0)
@@ -407,8 +437,14 @@ class GuidedPhotons(Sppm):
         self._after_pass(scale)
         self._choose_camera_variance()
         self._update_balanced(n_p)
-        self.pool.adapt(tallies, self.target_acceptance,
-                        uploads=[(self.b_mis, b.astype(np.float32))] if (b > 0).all() else [])
+        uploads = [(self.b_mis, b.astype(np.float32))] if (b > 0).all() else []
+        if guide is not None:
+            warp = guide.update(*tallies["extra"][:2])
+            if warp and self.keep_vertices:
+                # A kept vertex list is the path of its state's v under the old warp.
+                warp.append((self.vertex_complete, np.zeros(self.vertex_complete.shape, np.int32)))
+            uploads += warp
+        self.pool.adapt(tallies, self.target_acceptance, uploads=uploads)
         self.totals += tallies["counters"]
         self.b_last = b
         if b[0] > 0:
@@ -504,6 +540,8 @@ class GuidedPhotons(Sppm):
             "uniform_visible_fraction": float(t[0, UNIFORM_VISIBLE]) / max(int(t[0, UNIFORM]), 1),
             "uniform_weight": self.beta.value, "uniform_weight_auto": self.beta.auto,
             "mutation_probability": self.pool.mutation_probability,
+            "pss_guide_pairs": self.pss_guide.n_pairs if self.pss_guide else 0,
+            "pss_guide_updates": self.pss_guide.updates if self.pss_guide else 0,
             "photon_paths_traced": int(self.paths_traced[None]),
             "deposits_from_kept_vertices": int(self.deposits_from_lists[None]) if self.keep_vertices else 0,
             "levels": levels,
