@@ -81,6 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--alpha", type=float)
     c.add_argument("--radius", type=float)
     c.add_argument("--radius-rule", choices=["progressive", "balanced"])
+    c.add_argument("--disc", choices=["full", "clipped"])
     _add_guiding_options(c)
     _add_vcm_options(c)
     c.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE")
@@ -119,6 +120,10 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
                     help="progressive: the radius shrinks by alpha's rule; balanced (the default): it shrinks "
                          "faster while the radius bias, measured against discs of half the area, outweighs "
                          "what a smaller radius adds in noise (docs/vcm.md, docs/guiding.md)")
+    pm.add_argument("--disc", choices=["full", "clipped"],
+                    help="sppm, visibility, spatial-tf: full divides a point's photons by its whole disc; clipped "
+                         "by the part of the disc on its surface, found with rays (no dark edges; docs/guiding.md, "
+                         "\"The doorway's bright strip\")")
     _add_guiding_options(r)
     _add_vcm_options(r)
     d = r.add_argument_group("several processes or machines (needs photonmc[distributed], i.e. Ray)")
@@ -213,7 +218,7 @@ def _add_vcm_options(parser):
 
 def _method_options(args) -> dict:
     return {"photons": args.photons, "camera_paths": args.camera_paths, "alpha": args.alpha, "radius": args.radius,
-            "radius_rule": args.radius_rule, "chains": args.chains,
+            "radius_rule": args.radius_rule, "disc": args.disc, "chains": args.chains,
             "target_acceptance": args.target_acceptance, "proposal_failures": args.proposal_failures,
             "expected_values": args.expected_values, "path_target": args.path_target,
             "spatial_levels": args.spatial_levels,

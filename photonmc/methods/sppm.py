@@ -37,6 +37,7 @@ from ..kernels import pixel_samples, rng
 from ..kernels.camera_walk import STOP, THROUGHPUT_ROULETTE, camera_walk
 from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.direct import next_event
+from ..kernels.disc_clip import disc_shares
 from ..kernels.batch import fill_fields
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import HashGrid
@@ -83,8 +84,13 @@ class Sppm(Method):
                # (effort.py, observe_bias). Off: on the rooms measured it moved K and the
                # photons little and the error not beyond the seeds' spread (docs/effort.md,
                # "The radius bias in the balance").
-               "effort_bias": False}
+               "effort_bias": False,
+               # clipped: each MP's estimate divides by the part of its disc that lies on its
+               # surface (kernels/disc_clip.py), which removes the dark bias of discs that
+               # overhang an edge (docs/guiding.md, "The doorway's bright strip").
+               "disc": "full"}
     RADIUS_RULES = ("progressive", "balanced")
+    DISCS = ("full", "clipped")
     default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
     # The twins' V_c estimates: their plain mean since the start (sppm: the caustic's rare
     # camera paths to the lamp through glass are error its photons cannot remove, and the
@@ -94,6 +100,7 @@ class Sppm(Method):
     # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the
     # pass's measurement points with their per-pass accumulators (up to MP_BUDGET points).
     TRANSIENT = ("grid", "mp_p", "mp_n", "mp_wo", "mp_W", "mp_bsdf", "mp_depth", "mp_valid", "mp_radius",
+                 "mp_share", "mp_share_inner",
                  "mp_direct", "mp_twin_direct", "mp_twin_matched", "M", "phi", "phi_odd", "phi_inner",
                  "camera_estimate", "twin_unmatched")
     n_levels = 1          # flux accumulators per measurement point (one per Markov-chain level)
@@ -136,6 +143,9 @@ class Sppm(Method):
         # balanced: every radius shrinks faster while the image's measured radius bias
         # outweighs its noise (docs/guiding.md, "A radius that balances its bias against the noise")
         self.balanced_radius = opts["radius_rule"] == "balanced"
+        if opts["disc"] not in self.DISCS:
+            raise SettingsError(f"--disc must be one of {', '.join(self.DISCS)}, got '{opts['disc']}'")
+        self.clipped_disc = opts["disc"] == "clipped"
         if opts["balance"] not in ("mse", "relmse"):
             raise SettingsError(f"--balance must be 'mse' or 'relmse', got '{opts['balance']}'")
         # relmse: the effort balance weighs each pixel's error by 1 / (m^2 + eps), as converge's
@@ -181,6 +191,9 @@ class Sppm(Method):
         self.mp_depth = f.scalar(ti.i32, n)
         self.mp_valid = f.scalar(ti.i32, n)
         self.mp_radius = f.scalar(ti.f32, n)
+        if self.clipped_disc:
+            self.mp_share = f.scalar(ti.f32, n)          # the part of the disc on the MP's surface
+            self.mp_share_inner = f.scalar(ti.f32, n)    # and of the disc of half the area
         self.mp_direct = f.vector(3, ti.f64, n)        # the camera path's emission and direct light
         self.mp_twin_direct = f.vector(3, ti.f64, n)   # its twin's (at the same pixel position)
         self.mp_twin_matched = f.scalar(ti.i32, n)     # 1 where the twin reached the same MP
@@ -299,6 +312,8 @@ class Sppm(Method):
         self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle,
                           k, in_use, *self.pixel_passes.take(k), int(self.twins_now))
         self._init_radii(k)
+        if self.clipped_disc:
+            self._clip_discs(in_use)
         self.grid.build(self.mp_p, self.mp_radius, self.mp_valid, in_use)
         self.camera_paths_last = k
 
@@ -399,6 +414,15 @@ class Sppm(Method):
                     if self.R[i] == 0.0:
                         self.R[i] = ti.max(ti.cast(self.mp_radius[j], ti.f64), 1e-30)
                     self.mp_radius[j] = ti.cast(self.R[i], ti.f32)
+
+    @ti.kernel
+    def _clip_discs(self, in_use: ti.i32):
+        """Each valid MP's share of its disc (and of the half-area disc) on its surface."""
+        for j in range(in_use):
+            if self.mp_valid[j]:
+                full, inner = disc_shares(self.dscene, self.mp_p[j], self.mp_n[j], self.mp_radius[j])
+                self.mp_share[j] = full
+                self.mp_share_inner[j] = inner
 
     # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
     roulette = THROUGHPUT_ROULETTE
@@ -542,6 +566,11 @@ class Sppm(Method):
                         phi += ti.cast(self.phi[level, j], ti.f64) * self.level_scale[level]
                         phi_odd += ti.cast(self.phi_odd[level, j], ti.f64) * self.level_scale[level]
                     w = ti.cast(self.mp_W[j], ti.f64)
+                    w_inner = w
+                    if ti.static(self.clipped_disc):
+                        # the disc's area is pi R^2 x its share on the surface, for every use below
+                        w = w / ti.cast(self.mp_share[j], ti.f64)
+                        w_inner = w_inner / ti.cast(self.mp_share_inner[j], ti.f64)
                     w_phi += w * phi
                     w_phi_odd += w * phi_odd
                     halves_mp = lum.dot(2.0 * w * phi - 4.0 * w * phi_odd)
@@ -551,7 +580,7 @@ class Sppm(Method):
                         for level in ti.static(range(self.n_acc)):
                             phi_inner += ti.cast(self.phi_inner[level, j], ti.f64) * self.level_scale[level]
                             self.phi_inner[level, j] = ti.Vector([0, 0, 0], ti.i64)
-                        w_phi_inner += w * phi_inner
+                        w_phi_inner += w_inner * phi_inner
                     if ti.static(self.uniform_accumulator):
                         for level in ti.static(range(self.n_acc)):
                             row = 2 if level == self.n_levels else 0
