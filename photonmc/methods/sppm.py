@@ -38,6 +38,8 @@ from ..kernels.camera_walk import STOP, THROUGHPUT_ROULETTE, camera_walk
 from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.direct import next_event
 from ..kernels.disc_clip import disc_shares
+
+PROBE_ALL_EVERY = 8      # --disc clipped: passes between probes of every pixel's MPs
 from ..kernels.batch import fill_fields
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import HashGrid
@@ -200,6 +202,11 @@ class Sppm(Method):
         # Per-pixel progressive statistics, float64.
         n = self.n_pixels
         self.R = f.scalar(ti.f64, n)
+        if self.clipped_disc:
+            # 1 for a pixel one of whose MPs found its disc cut by an edge: its MPs are probed
+            # every pass, the others' every PROBE_ALL_EVERY passes (_clip_discs).
+            self.edge_pixel = f.scalar(ti.i32, n)
+            self.edge_seen = f.scalar(ti.i32, n)
         self.N = f.scalar(ti.f64, n)
         self.D = f.vector(3, ti.f64, n)
         self.tau = f.vector(3, ti.f64, n)
@@ -271,6 +278,8 @@ class Sppm(Method):
     def _reset(self):
         fill_fields((f, 0) for f in (self.R, self.N, self.D, self.tau, self.Ld, self.M, self.phi, self.phi_odd,
                                      self.counters, self.mp_valid, self.camera_held, self.camera_stochastic))
+        if self.clipped_disc:
+            fill_fields((f, 0) for f in (self.edge_pixel, self.edge_seen))
         if self.balanced_radius:
             fill_fields((f, 0) for f in (self.phi_inner, self.bias_sum, self.bias_sq, self.bias_passes,
                                          self.bias_radius_sq, self.bias_inverse_radius_sq))
@@ -313,7 +322,7 @@ class Sppm(Method):
                           k, in_use, *self.pixel_passes.take(k), int(self.twins_now))
         self._init_radii(k)
         if self.clipped_disc:
-            self._clip_discs(in_use)
+            self._clip_discs(in_use, int(it % PROBE_ALL_EVERY == 0))
         self.grid.build(self.mp_p, self.mp_radius, self.mp_valid, in_use)
         self.camera_paths_last = k
 
@@ -416,13 +425,26 @@ class Sppm(Method):
                     self.mp_radius[j] = ti.cast(self.R[i], ti.f32)
 
     @ti.kernel
-    def _clip_discs(self, in_use: ti.i32):
-        """Each valid MP's share of its disc (and of the half-area disc) on its surface."""
+    def _clip_discs(self, in_use: ti.i32, probe_all: ti.i32):
+        """Each valid MP's share of its disc (and of the half-area disc) on its surface, probed
+        (kernels/disc_clip.py) in the pixels where an edge was found before, and in every
+        pixel every PROBE_ALL_EVERY passes; elsewhere the full disc (share 1, the plain
+        estimator: an edge not yet found costs its bias until the next pass that probes all).
+        The probes cost 16-48 rays per MP, several times its camera path."""
+        n = self.n_pixels
         for j in range(in_use):
-            if self.mp_valid[j]:
+            self.mp_share[j] = 1.0
+            self.mp_share_inner[j] = 1.0
+            i = j % n
+            if self.mp_valid[j] and (probe_all or self.edge_pixel[i]):
                 full, inner = disc_shares(self.dscene, self.mp_p[j], self.mp_n[j], self.mp_radius[j])
                 self.mp_share[j] = full
                 self.mp_share_inner[j] = inner
+                if full < 0.999:
+                    self.edge_seen[i] = 1
+        for i in range(n):          # after every decision of this pass: deterministic
+            if self.edge_seen[i]:
+                self.edge_pixel[i] = 1
 
     # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
     roulette = THROUGHPUT_ROULETTE
