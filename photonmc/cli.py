@@ -123,7 +123,7 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
     pm.add_argument("--disc", choices=["full", "clipped"],
                     help="sppm, visibility, spatial-tf: full divides a point's photons by its whole disc; clipped "
                          "by the part of the disc on its surface, found with rays (no dark edges; docs/guiding.md, "
-                         "\"The doorway's bright strip\")")
+                         "\"Discs that overhang an edge\")")
     _add_guiding_options(r)
     _add_vcm_options(r)
     d = r.add_argument_group("several processes or machines (needs photonmc[distributed], i.e. Ray)")

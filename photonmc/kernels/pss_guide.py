@@ -5,7 +5,8 @@ Where light reaches the camera's room only through a gap, the set of visible pho
 thin in the first coordinates (the emission direction, the first bounce's direction) and a
 mutation that moves it at all leaves it (docs/guiding.md, "Why the mutations shrink"). Here
 each guided pair of coordinates (x, y) is a 2D piecewise-constant distribution over a G x G
-grid, learned from the pass's visible uniform proposals: a chain state is v in [0,1)^D as
+grid, learned from the visible uniform proposals of the passes so far, each weighted by
+what it brought to the image (methods/guided.py): a chain state is v in [0,1)^D as
 before, its path reads u = W(v), and the photon's power carries 1 / q(u), q the warp's
 density (the product over the pairs). Nothing else changes: the chains still sample their
 targets in v (a uniform v is still an exact draw, a visible one still an exact start), the
@@ -77,9 +78,10 @@ def warp_numpy(rows: np.ndarray, cols: np.ndarray, k: int, x: np.ndarray, y: np.
 
 @data_oriented
 class PssGuide:
-    """The warp of the first `n_pairs` of PAIRS, learned over the render (cumulative counts of
-    the visible uniform proposals' cells, each weighted by 1 / q so that they estimate the
-    visible set's own marginal, whatever warp drew them)."""
+    """The warp of the first `n_pairs` of PAIRS, learned over the render: cumulative sums,
+    per cell, of what the visible uniform proposals brought. Their photons carry 1 / q, so the
+    sums estimate the contribution's own marginal whatever warp drew them. (Counted 1 / q each,
+    they would estimate the visible set's; measured and lost more, docs/guiding.md.)"""
 
     def __init__(self, n_pairs: int, n_ladders: int, name: str):
         if not 1 <= n_pairs <= len(PAIRS):
@@ -158,15 +160,14 @@ class PssGuide:
     @ti.func
     def learn(self, source: ti.template(), key, ladder, weight):
         """A visible uniform proposal `key` (coordinates v from `source`) of what it brought
-        (`weight`): each pair's cell of its warped coordinates gains weight / q(u), q over every
-        pair."""
-        inv_q = 1.0
+        (`weight`, its photons' power already carrying 1 / q(u), q over every pair: which is
+        what makes the sums estimate the contribution's own marginal): each pair's cell of its
+        warped coordinates gains weight."""
         cells = ti.Vector([0] * self.n_pairs)
         for k in ti.static(range(self.n_pairs)):
-            ux, uy, q = self.warp(k, source.get(key, self.dims[k][0]), source.get(key, self.dims[k][1]))
-            inv_q /= q
+            ux, uy, _ = self.warp(k, source.get(key, self.dims[k][0]), source.get(key, self.dims[k][1]))
             cells[k] = ti.cast(ux * CELLS, ti.i32) * CELLS + ti.cast(uy * CELLS, ti.i32)
-        add = ti.cast(weight * inv_q, ti.f64)
+        add = ti.cast(weight, ti.f64)
         for k in ti.static(range(self.n_pairs)):
             self.counts[ladder, k, cells[k] // CELLS, cells[k] % CELLS] += add
         self.samples[ladder] += 1

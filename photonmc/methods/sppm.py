@@ -89,7 +89,7 @@ class Sppm(Method):
                "effort_bias": False,
                # clipped: each MP's estimate divides by the part of its disc that lies on its
                # surface (kernels/disc_clip.py), which removes the dark bias of discs that
-               # overhang an edge (docs/guiding.md, "The doorway's bright strip").
+               # overhang an edge (docs/guiding.md, "Discs that overhang an edge").
                "disc": "full"}
     RADIUS_RULES = ("progressive", "balanced")
     DISCS = ("full", "clipped")
