@@ -450,3 +450,17 @@ def test_resume_of_a_learned_warp_equals_straight(tmp_path):
         p.method.iterate()
     assert np.array_equal(p.method.image(), straight.image)
     p.release()
+
+
+def test_resume_with_clipped_discs_equals_straight(tmp_path):
+    """sppm --disc clipped: which pixels have shown an edge (and so are probed every pass) is
+    part of the state, so the resumed render probes the same points and gives the same image."""
+    j = Job(scene=CORNELL, params=SMALL, method="sppm", seed=3, options={"photons": 512, "disc": "clipped"})
+    straight = rendered(j, 12)
+    [saved] = state.load(state.save(tmp_path / "clipped.state", [rendered(j, 5)]))
+    assert saved.arrays["edge_pixel"].any(), "no edge found before the save"
+    p, _ = resume(saved)
+    for _ in range(7):
+        p.method.iterate()
+    assert np.array_equal(p.method.image(), straight.image)
+    p.release()
