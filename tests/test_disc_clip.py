@@ -7,6 +7,7 @@ import pytest
 import taichi as ti
 
 from photonmc import load_scene
+from photonmc.imageio import read_image
 from photonmc.kernels.device_scene import DeviceScene
 from photonmc.kernels.disc_clip import BISECTIONS, DIRECTIONS, SHARE_MIN, disc_shares
 from photonmc.loop import Budget, prepare, run
@@ -54,8 +55,9 @@ def test_the_share_of_a_disc_cut_by_an_edge_a_wall_and_a_corner(write_scene):
 
     shares(points, out)
     got = out.to_numpy()
-    # DIRECTIONS sectors, each cut where its ray leaves the surface to within R / 2^(BISECTIONS + 1)
-    tolerance = 0.06 if DIRECTIONS >= 8 and BISECTIONS >= 4 else 0.1
+    # DIRECTIONS (8) sectors, each cut where its ray leaves the surface to within R / 2^(BISECTIONS + 1)
+    assert (DIRECTIONS, BISECTIONS) == (8, 4), "the tolerance below is for 8 sectors and 4 halvings"
+    tolerance = 0.06
     for (point, share), (full, inner) in zip(cases, got):
         assert abs(full - share) < tolerance, (point, full, share)
     assert got[0, 1] == pytest.approx(1.0)
@@ -69,7 +71,6 @@ def test_clipped_discs_take_the_dark_edges_out_of_the_cornell_box():
     the box with full discs; clipped, its mean agrees with the Mitsuba reference. The same
     photons, so the difference is the discs' areas alone."""
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 32})
-    from photonmc.imageio import read_image
     ref = luminance(downsample(read_image(REFS / "cornell-box-64.exr"), 2))
     means = {}
     for disc in ("full", "clipped"):

@@ -98,8 +98,7 @@ class PssGuide:
         self.samples = f.scalar(ti.i64, n_ladders)     # visible uniform proposals learned from
         f.finalize()
         self.fields = f
-        self.learned = False
-        self.updates = 0
+        self.updates = 0            # passes that drew from a learned warp
         self.reset()
 
     def release(self):
@@ -109,7 +108,6 @@ class PssGuide:
         rows, cols = warp_tables(np.zeros((self.n_pairs, CELLS, CELLS)))
         upload_fields([(self.rows, rows), (self.cols, cols),
                        (self.counts, np.zeros(self.counts.shape)), (self.samples, np.zeros(self.samples.shape, np.int64))])
-        self.learned = False
         self.updates = 0
 
     def readable(self) -> tuple:
@@ -124,7 +122,6 @@ class PssGuide:
         if int(np.sum(samples)) < MIN_SAMPLES:
             return []
         rows, cols = warp_tables(np.asarray(counts, np.float64).sum(axis=0))
-        self.learned = True
         self.updates += 1
         return [(self.rows, rows), (self.cols, cols)]
 
