@@ -190,6 +190,11 @@ def _add_vcm_options(parser):
                         "ladders, and gives the uniform proposals at least that share of mbe's steps (the "
                         "guided methods mutate with probability 1 - share); 0: the chains' estimate alone; "
                         "1: the uniform proposals' alone (docs/mbe.md, docs/guiding.md)")
+    g.add_argument("--uniform-passes", choices=["auto", "off"],
+                   help="visibility, spatial-tf: auto (default) makes a pass a uniform pass (its photons traced "
+                        "plainly, as sppm's, without the chains) where the chains' lower photon variance does not "
+                        "pay for their work, both counted as the render goes; off: chain passes only "
+                        "(docs/guiding.md, 'Uniform passes where the chains do not pay')")
     g.add_argument("--vcm-passes", choices=["auto", "measured", "off"],
                    help="mbe: measured (default) makes a pass a vcm pass (independent light subpaths, no "
                         "chains) where both kinds' measured variance per pass x work says it removes more error "
@@ -226,6 +231,7 @@ def _method_options(args) -> dict:
             "large_step": args.large_step, "suffix_mutation": args.suffix_mutation,
             "mutation": args.mutation, "warm_start": args.warm_start,
             "balance": args.balance, "uniform_weight": args.uniform_weight, "vcm_passes": args.vcm_passes,
+            "uniform_passes": args.uniform_passes,
             "film_weights": args.film_weights, "pixel_samples": args.pixel_samples,
             "camera_variance": args.camera_variance, "pss_guide": args.pss_guide}
 

@@ -71,16 +71,24 @@ def _open_box(write_scene, res=16):
             <emitter type="area"><rgb name="radiance" value="4"/></emitter></shape>"""))
 
 
-def test_visibility_and_sppm_agree_where_photons_are_visible(write_scene):
+@pytest.mark.parametrize("uniform_passes", ["auto", "off"])
+def test_visibility_and_sppm_agree_where_photons_are_visible(write_scene, uniform_passes):
     """Same radius schedule (fixed radius, alpha near 1), so both estimate the same blurred
     image: they must agree within noise, measured from the spread of 4x4 block means of the
-    difference (the two renders are independent)."""
+    difference (the two renders are independent). With uniform passes (the default) most
+    passes here are uniform ones, a chain pass every eighth (methods/photon_passes.py); off:
+    chain passes alone."""
     scene = _open_box(write_scene)
     opts = {"alpha": 0.999, "radius_rule": "progressive", "radius": 0.08, "photons": 8192}
     a = render(scene, "sppm", 150, seed=1, **opts)
-    b = render(scene, "visibility", 150, seed=2, **opts)
-    print("visible fraction", b.stats["uniform_visible_fraction"])
+    b = render(scene, "visibility", 150, seed=2, uniform_passes=uniform_passes, **opts)
+    print("visible fraction", b.stats["uniform_visible_fraction"], b.stats.get("pass_choice"))
     assert b.stats["uniform_visible_fraction"] > 0.1
+    if uniform_passes == "auto":
+        kinds = b.stats["pass_choice"]
+        assert kinds["uniform_wins"] and kinds["uniform_passes"] > 100 and kinds["chain_passes"] > 16
+    else:
+        assert "pass_choice" not in b.stats
     la, lb = luminance(a.image), luminance(b.image)
     rel = lb.mean() / la.mean() - 1
     blocks = downsample(lb - la, 4)
@@ -285,8 +293,11 @@ def test_guided_methods_converge_on_the_light_gap(method):
                                  "outside": bias(img, ~band), "band": bias(img, band)}
 
     run(p, Budget(iterations=400), quiet=True, on_iteration=record)
-    levels = p.method.stats()["levels"]
+    stats = p.method.stats()
+    levels = stats["levels"]
     p.release()
+    # The chains pay here (r = 0.2-0.35): chain passes, at most the measuring uniform passes.
+    assert stats["pass_choice"]["uniform_passes"] <= 5 and not stats["pass_choice"]["uniform_wins"]
     # The ladder's chained normalisations b_{l+1} = b_l E_l[T_{l+1}/T_l] against the plain
     # means of T_l over the same passes' uniform proposals (unbiased, but noisier per pass):
     # averaged over 400 passes they must agree (measured within 0.15 %, docs/guiding.md).

@@ -101,6 +101,22 @@ def test_resume_of_a_balanced_render_equals_straight(tmp_path, method, options, 
     p.release()
 
 
+def test_resume_across_uniform_passes_equals_straight(tmp_path):
+    """visibility's choice between chain and uniform passes (methods/photon_passes.py) is
+    part of the state: resumed after 24 passes, some of them uniform ones, the render makes
+    the same choices and gives the straight image."""
+    j = Job(scene=CORNELL, params=SMALL, method="visibility", seed=3, options={"photons": 512})
+    straight = rendered(j, 48)
+    [saved] = state.load(state.save(tmp_path / "kinds.state", [rendered(j, 24)]))
+    assert saved.plain["pass_choice.uniform_passes"] > 0, "no uniform pass before the save"
+    p, _ = resume(saved)
+    for _ in range(24):
+        p.method.iterate()
+    assert np.array_equal(p.method.image(), straight.image)
+    assert p.method.pass_choice.uniform_passes == straight.plain["pass_choice.uniform_passes"]
+    p.release()
+
+
 def test_resume_of_vcm_with_balanced_light_paths_equals_straight(tmp_path):
     """vcm --light-paths auto (the default): the light-path balance's sums, its centre and the
     last pass's estimate it differences against are part of the state, so a render saved after

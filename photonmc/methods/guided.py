@@ -43,11 +43,13 @@ from ..kernels.mcmc import (
     ChainPool,
 )
 from ..kernels.photon import BOUNCE_DIMS, LIGHT_DIMS, dimensions, photon_segments, trace_photon
+from ..kernels import rng
 from ..kernels.pss_guide import PAIRS, PssGuide
 from ..kernels.sampling import luminance
 from .clusters import UNKNOWN, HitDensityClusters
 from .effort import UniformWeight, uniform_weight_option
-from .sppm import FIXED_ONE, Sppm
+from .photon_passes import PhotonPassChoice
+from .sppm import FIXED_ONE, Sppm, _HashSource
 from ..taichi_frontend import data_oriented
 
 REGENERATIONS = 10       # visible uniform proposals each chain should see per pass
@@ -102,7 +104,11 @@ class GuidedPhotons(Sppm):
                "camera_variance": "pairs",
                # Pairs of primary-sample coordinates warped by a learned guide (0: none;
                # kernels/pss_guide.py, docs/guiding.md "A learned warp of the first coordinates").
-               "pss_guide": 0}
+               "pss_guide": 0,
+               # auto: a pass traces its photons plainly, without the chains, where the chains'
+               # lower photon variance does not pay for their work (methods/photon_passes.py,
+               # docs/guiding.md "Uniform passes where the chains do not pay"); off: chain passes only.
+               "uniform_passes": "auto"}
     # Every step's uniform photon is also an estimate of its own, sppm's (an accumulator after
     # the levels'), joined to the chains' with the least-variance weight beta; the chains'
     # mutations are made with probability 1 - beta (at least MIN_MUTATION): where uniform
@@ -164,6 +170,11 @@ class GuidedPhotons(Sppm):
             raise SettingsError(f"{self.name} has one chain per ladder: --warm-start and ladder_burn_in are for "
                                 f"the upper levels of spatial-tf's ladders (and mbe's --warm-start)")
         uniform_weight_option(opts["uniform_weight"])     # checked here, used from _reset_guided
+        if opts["uniform_passes"] not in ("auto", "off"):
+            raise SettingsError(f"--uniform-passes must be 'auto' or 'off', got '{opts['uniform_passes']}'")
+        # The choice reads beta's even-odd sums and the balance's counted work: two ladders at least.
+        self.uniform_passes_on = opts["uniform_passes"] == "auto" and self.effort is not None
+        self.force_uniform = False      # warm_up: compile the uniform pass too
         n_pairs = opts["pss_guide"]
         if isinstance(n_pairs, bool) or str(n_pairs) not in [str(k) for k in range(len(PAIRS) + 1)]:
             raise SettingsError(f"--pss-guide is the number of coordinate pairs to warp, 0 to {len(PAIRS)}, "
@@ -251,6 +262,9 @@ class GuidedPhotons(Sppm):
         self.passes_with_b = 0
         self.beta = UniformWeight(self.options["uniform_weight"])
         self.pool.mutation_probability = 1.0
+        self.pass_choice = PhotonPassChoice()
+        self.uniform_pass = False       # whether the pass being made is a uniform pass
+        self.previous_uniform = False   # and the one before it
 
     # -- the model interface of ChainPool -------------------------------------------------
     @ti.func
@@ -417,7 +431,60 @@ class GuidedPhotons(Sppm):
         return hit
 
     # -- the iteration -----------------------------------------------------------------------
+    def warm_up(self):
+        """Compile both kinds of pass: a chain pass, then a uniform one (reset() follows)."""
+        self.iterate()
+        if self.uniform_passes_on:
+            self.force_uniform = True
+            self.iterate()
+            self.force_uniform = False
+
     def _iterate(self):
+        self.previous_uniform = self.uniform_pass
+        self.uniform_pass = self.uniform_passes_on and (self.force_uniform or self.pass_choice.next_is_uniform())
+        if self.uniform_pass:
+            self._iterate_uniform()
+        else:
+            self._iterate_chains()
+        if self.uniform_passes_on:
+            self.pass_choice.observe(self.uniform_pass, self.last_steps, self.pass_segments, self.pass_deposits)
+            self.pass_choice.observe_variances(self.beta.value, self.beta.sums)
+
+    def _iterate_uniform(self):
+        """A uniform pass (methods/photon_passes.py): the pass's photons traced plainly into the
+        uniform photons' accumulator, sppm's photon pass at the same camera paths per pixel."""
+        it = self.iterations
+        n_p = self._steps_this_pass()
+        self._measurement_points(it)
+        self.flux_weight.fill(0.0)
+        self.hit_weight.fill(0.0)
+        self._set_uniform_visitors()
+        self._uniform_photons(self.seed_u32, it, n_p)
+        raw = np.zeros(self.n_levels + 1)
+        raw[-1] = self.power_scale / FIXED_ONE
+        upload_fields([(self.level_scale, raw), (self.raw_scale, raw)])
+        self._choose_camera_variance()
+        self._update_balanced(n_p)
+        self.photons_emitted += n_p
+        self.work_done += n_p
+
+    @ti.kernel
+    def _set_uniform_visitors(self):
+        for v in range(2):
+            self.visit_mode[v] = DEPOSIT
+            self.flux_weight[v][self.n_levels] = 1.0
+
+    @ti.kernel
+    def _uniform_photons(self, seed: ti.u32, iteration: ti.u32, n_photons: ti.i32):
+        """Photon p deposits through visitor slot p & 1 (the even and odd halves, effort.py),
+        with its random numbers as sppm's photon p of this iteration."""
+        for p in range(n_photons):
+            key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
+            _, dims = trace_photon(self.dscene, _HashSource, key, self, p & 1, ti.static(self.max_photon_segments))
+            ti.atomic_add(self.paths_traced[None], 1)
+            ti.atomic_add(self.counters[3], photon_segments(dims))
+
+    def _iterate_chains(self):
         it = self.iterations
         n_p = self._steps_this_pass()
         self._measurement_points(it)
@@ -454,6 +521,36 @@ class GuidedPhotons(Sppm):
         self.photons_emitted += n_p
         self.work_done += n_p
 
+    def _balance_keeps(self) -> bool:
+        """The effort balance models the kind of pass being chosen: a pass of the other kind (a
+        uniform pass where chains win: 1/r times their photon variance) would pull its photon
+        variance, and the pass after one its V_c (the pair's photon part is read from the later
+        pass alone), toward passes it is not choosing between. Where every pass was a chain pass,
+        light-gap's K fell and its RMSE rose 9 % (docs/guiding.md)."""
+        if not self.uniform_passes_on:
+            return True
+        wins = self.pass_choice.uniform_wins
+        return self.uniform_pass == wins and self.previous_uniform == wins
+
+    def _radius_from_last_counts(self) -> bool:
+        """The radius follows the chain passes' counts. The chains' states all deposit
+        (light-gap's chain passes make 19 times the deposits per photon of a uniform pass), and
+        counted as photons they shrink the radius far faster than as many uniform photons: the
+        uniform passes chosen early in light-gap, counting their own photons, left its radius
+        10 % larger and its RMSE 10-15 % higher (docs/guiding.md). So a uniform pass updates
+        each pixel's radius by the last chain pass's count, and the radius goes as a render of
+        chain passes alone would. A rule fixed before the pass, it keeps the estimator as it
+        was: each pass estimates the pixel at the radius it is given. Scaling a uniform pass's
+        counts to a chain pass's instead left the radius larger still (SPPM's update shrinks a
+        radius by at most sqrt(alpha) per pass, however many photons the pass counts)."""
+        return self.uniform_passes_on and self.uniform_pass
+
+    def _measures_bias(self) -> bool:
+        """The balanced radius rule weighs the bias of the passes it expects against their
+        noise: a uniform pass where the chains win has 1/r times their photon noise, and in the
+        rule's sums it would hide the bias that the chain passes' radius leaves."""
+        return not self.uniform_passes_on or self.uniform_pass == self.pass_choice.uniform_wins
+
     def _choose_camera_variance(self):
         """--camera-variance auto (an option): the twins' V_c (the pixel positions held) where
         this pass's length was its photon floor, so that K does not move it; the pairs' where
@@ -471,8 +568,8 @@ class GuidedPhotons(Sppm):
     def _observe_uniform_weight(self, s_chains: float, s_uniform: float, s_product: float):
         """The pass's even-odd sums of the chains' and the uniform photons' estimates
         (Sppm._update): beta for the next pass, and the mutation probability that follows it."""
-        if s_chains <= 0.0 and s_uniform <= 0.0:
-            return          # nothing deposited: no evidence either way
+        if self.uniform_pass or (s_chains <= 0.0 and s_uniform <= 0.0):
+            return          # a uniform pass has no chains' estimate; nothing deposited: no evidence
         self.beta.observe(s_uniform, s_chains, s_product)
         if self.beta.auto:
             self.pool.mutation_probability = float(max(1.0 - self.beta.value, MIN_MUTATION))
@@ -542,6 +639,8 @@ class GuidedPhotons(Sppm):
             "mutation_probability": self.pool.mutation_probability,
             "pss_guide_pairs": self.pss_guide.n_pairs if self.pss_guide else 0,
             "pss_guide_updates": self.pss_guide.updates if self.pss_guide else 0,
+            "uniform_passes": self.options["uniform_passes"],
+            **({"pass_choice": self.pass_choice.stats()} if self.uniform_passes_on else {}),
             "photon_paths_traced": int(self.paths_traced[None]),
             "deposits_from_kept_vertices": int(self.deposits_from_lists[None]) if self.keep_vertices else 0,
             "levels": levels,

@@ -165,6 +165,7 @@ class Sppm(Method):
                             and (self.balanced or self.camera_paths_auto))
         self.camera_variance_auto = self.held_camera and opts["camera_variance"] == "auto"
         self.regeneration_bound = False
+        self.pass_segments = self.pass_deposits = 0.0     # the last pass's photon work (_update_balanced)
         self.twins_now = False
         self.twin_passes = 0
         self.twin_pixels_unmatched = 0.0
@@ -247,6 +248,7 @@ class Sppm(Method):
             # and per pixel the even-odd differences of the chains' and the uniform photons'
             # estimates (the halves the uniform photons' weight is chosen from).
             self.raw_scale = f.scalar(ti.f64, self.n_acc)
+            self.last_counts = f.scalar(ti.f64, n)      # per pixel: the last chain pass's photons per MP
             self.half_chains = f.scalar(ti.f64, n)
             self.half_uniform = f.scalar(ti.f64, n)
         # 0: photon paths that deposited, 1: non-finite direct samples, 2: camera rays this
@@ -280,6 +282,8 @@ class Sppm(Method):
                                      self.counters, self.mp_valid, self.camera_held, self.camera_stochastic))
         if self.clipped_disc:
             fill_fields((f, 0) for f in (self.edge_pixel, self.edge_seen))
+        if self.uniform_accumulator:
+            self.last_counts.fill(0)
         if self.balanced_radius:
             fill_fields((f, 0) for f in (self.phi_inner, self.bias_sum, self.bias_sq, self.bias_passes,
                                          self.bias_radius_sq, self.bias_inverse_radius_sq))
@@ -342,7 +346,8 @@ class Sppm(Method):
         held = self.held_camera and effort is not None and self.iterations >= 1
         self._update(self.alpha * self.alpha_factor, n_p, k, int(held), int(self.twins_now),
                      float(effort.last_photons or n_p) if held else float(n_p),
-                     int(effort.last_camera_paths or k) if held else k)
+                     int(effort.last_camera_paths or k) if held else k, int(self._measures_bias()),
+                     int(self._radius_from_last_counts()))
         if self.balanced_radius:
             sums = self._balance_radius_sums()
             self.alpha_factor = ALPHA_FAST if bias_outweighs_noise(sums[0], sums[1], sums[2]) else 1.0
@@ -354,6 +359,7 @@ class Sppm(Method):
         self._effort_sums(self.relative_balance, self.camera_paths_done(), self.photons_emitted + n_p)
         sums = self.effort_sums.to_numpy()
         spread, half, radius_sq, valid, camera_rays, segments, deposits = sums[:7]
+        self.pass_segments, self.pass_deposits = float(segments), float(deposits)   # guided.py's pass choice
         self._observe_uniform_weight(*sums[7:10])
         n = float(self.n_pixels)
         if self.twins_now:
@@ -361,12 +367,27 @@ class Sppm(Method):
             self.twin_pixels_unmatched += float(sums[11])
         self.effort.observe(n_p, spread / n, half / n, radius_sq / max(valid, 1.0),
                             camera_rays + k * n, segments, camera_paths=k,   # rays, and the grid over the MPs
-                            deposits=deposits, half_difference_mp=float(sums[12]) / n,
+                            deposits=deposits, half_difference_mp=float(sums[12]) / n, keep=self._balance_keeps(),
                             camera_held=float(sums[10]) / n if self.held_camera and self.iterations >= 1 else None)
         if self.balanced:
             self.photons_per_iteration = self.effort.next_photons()
         if self.camera_paths_auto:
             self.camera_paths = self.effort.next_camera_paths(n_p, self.max_camera_paths)
+
+    def _balance_keeps(self) -> bool:
+        """Whether this pass's variances join the effort balance's estimates (guided.py: not a
+        pass of the kind not being chosen, nor the pass after one)."""
+        return True
+
+    def _radius_from_last_counts(self) -> bool:
+        """Whether the radius update counts the photons of the last pass that counted its own
+        instead of this pass's (guided.py: a uniform pass among chain passes)."""
+        return False
+
+    def _measures_bias(self) -> bool:
+        """Whether this pass's probes join the balanced radius rule's sums (guided.py: not a
+        pass of the kind not being chosen)."""
+        return True
 
     def _observe_uniform_weight(self, s_chains: float, s_uniform: float, s_product: float):
         """The guided methods choose the uniform photons' weight from these sums (guided.py)."""
@@ -555,7 +576,7 @@ class Sppm(Method):
 
     @ti.kernel
     def _update(self, alpha: ti.f64, n_p: ti.f64, camera_paths: ti.i32, held: ti.i32, twins: ti.i32, n_last: ti.f64,
-                camera_paths_last: ti.i32):
+                camera_paths_last: ti.i32, measure_bias: ti.i32, use_last_counts: ti.i32):
         lum = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
         n = self.n_pixels
         k = ti.cast(camera_paths, ti.f64)
@@ -628,13 +649,23 @@ class Sppm(Method):
             if valid > 0:
                 m /= ti.cast(valid, ti.f64)     # photons per MP: the radius follows photon density, not K
             if ti.static(self.balanced_radius):
-                if valid > 0 and self.R[i] > 0.0:
+                if measure_bias and valid > 0 and self.R[i] > 0.0:
                     self._measure_bias(i, lum, w_phi, w_phi_inner, k, n_p)
-            if m > 0.0:
+            # The photons the radius update counts: this pass's, or in a guided method's uniform
+            # pass the last chain pass's (guided.py, _radius_from_last_counts).
+            m_radius = m
+            if ti.static(self.uniform_accumulator):
+                if use_last_counts:
+                    m_radius = self.last_counts[i] if valid > 0 else 0.0
+                else:
+                    self.last_counts[i] = m
+            if m > 0.0 or m_radius > 0.0:
                 r = self.R[i]
                 n_old = self.N[i]
-                n_new = n_old + alpha * m
-                r_new = r * ti.sqrt(n_new / (n_old + m))
+                n_new, r_new = n_old, r
+                if m_radius > 0.0:
+                    n_new = n_old + alpha * m_radius
+                    r_new = r * ti.sqrt(n_new / (n_old + m_radius))
                 w_phi /= k
                 inc = w_phi / (ti.f64(PI) * r * r)
                 inc_odd = w_phi_odd / k / (ti.f64(PI) * r * r)
