@@ -101,22 +101,6 @@ def test_resume_of_a_balanced_render_equals_straight(tmp_path, method, options, 
     p.release()
 
 
-def test_resume_across_uniform_passes_equals_straight(tmp_path):
-    """visibility's choice between chain and uniform passes (methods/photon_passes.py) is
-    part of the state: resumed after 24 passes, some of them uniform ones, the render makes
-    the same choices and gives the straight image."""
-    j = Job(scene=CORNELL, params=SMALL, method="visibility", seed=3, options={"photons": 512})
-    straight = rendered(j, 48)
-    [saved] = state.load(state.save(tmp_path / "kinds.state", [rendered(j, 24)]))
-    assert saved.plain["pass_choice.uniform_passes"] > 0, "no uniform pass before the save"
-    p, _ = resume(saved)
-    for _ in range(24):
-        p.method.iterate()
-    assert np.array_equal(p.method.image(), straight.image)
-    assert p.method.pass_choice.uniform_passes == straight.plain["pass_choice.uniform_passes"]
-    p.release()
-
-
 def test_resume_of_vcm_with_balanced_light_paths_equals_straight(tmp_path):
     """vcm --light-paths auto (the default): the light-path balance's sums, its centre and the
     last pass's estimate it differences against are part of the state, so a render saved after
@@ -454,17 +438,23 @@ def test_api_iterate_on_workers_shows_the_merged_image(ray_cluster):
     assert frames[-1].image.shape == (16, 16, 3) and frames[-1].image.mean() > 0
 
 
-def test_resume_of_a_learned_warp_equals_straight(tmp_path):
+@pytest.mark.parametrize("options,half,learned", [
+    ({"photons": 512, "pss_guide": 2}, 4, "pss_guide.updates"),
+    ({"photons": 512}, 24, "pass_choice.uniform_passes")], ids=["learned-warp", "uniform-passes"])
+def test_resume_of_what_visibility_learned_equals_straight(tmp_path, options, half, learned):
     """visibility --pss-guide 2: the warp's learned counts (per ladder) and its tables are part
-    of the state, so a render saved after the warp has been learned resumes to the same image."""
-    j = Job(scene=CORNELL, params=SMALL, method="visibility", seed=3, options={"photons": 512, "pss_guide": 2})
-    straight = rendered(j, 8)
-    [saved] = state.load(state.save(tmp_path / "warp.state", [rendered(j, 4)]))
-    assert saved.plain["pss_guide.updates"] > 0, "the warp was not learned before the save"
+    of the state; by default, its choice between chain and uniform passes (methods/
+    photon_passes.py: the work and variance it has measured). A render saved after it has
+    learned (`learned` > 0) resumes to the straight image, making the same choices."""
+    j = Job(scene=CORNELL, params=SMALL, method="visibility", seed=3, options=options)
+    straight = rendered(j, 2 * half)
+    [saved] = state.load(state.save(tmp_path / "learned.state", [rendered(j, half)]))
+    assert saved.plain[learned] > 0, f"nothing learned before the save ({learned})"
     p, _ = resume(saved)
-    for _ in range(4):
+    for _ in range(half):
         p.method.iterate()
     assert np.array_equal(p.method.image(), straight.image)
+    assert p.method.pass_choice.uniform_passes == straight.plain["pass_choice.uniform_passes"]
     p.release()
 
 

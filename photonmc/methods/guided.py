@@ -525,24 +525,24 @@ class GuidedPhotons(Sppm):
         """The effort balance models the kind of pass being chosen: a pass of the other kind (a
         uniform pass where chains win: 1/r times their photon variance) would pull its photon
         variance, and the pass after one its V_c (the pair's photon part is read from the later
-        pass alone), toward passes it is not choosing between. Where every pass was a chain pass,
-        light-gap's K fell and its RMSE rose 9 % (docs/guiding.md)."""
+        pass alone), toward passes it is not choosing between (docs/effort.md, "The balance
+        under uniform passes")."""
         if not self.uniform_passes_on:
             return True
         wins = self.pass_choice.uniform_wins
         return self.uniform_pass == wins and self.previous_uniform == wins
 
     def _radius_from_last_counts(self) -> bool:
-        """The radius follows the chain passes' counts. The chains' states all deposit
-        (light-gap's chain passes make 19 times the deposits per photon of a uniform pass), and
-        counted as photons they shrink the radius far faster than as many uniform photons: the
-        uniform passes chosen early in light-gap, counting their own photons, left its radius
-        10 % larger and its RMSE 10-15 % higher (docs/guiding.md). So a uniform pass updates
-        each pixel's radius by the last chain pass's count, and the radius goes as a render of
-        chain passes alone would. A rule fixed before the pass, it keeps the estimator as it
-        was: each pass estimates the pixel at the radius it is given. Scaling a uniform pass's
-        counts to a chain pass's instead left the radius larger still (SPPM's update shrinks a
-        radius by at most sqrt(alpha) per pass, however many photons the pass counts)."""
+        """The radius follows the chain passes' counts: the chains' states all deposit
+        (light-gap's chain passes make 19 times the deposits per photon of a uniform pass), so
+        a uniform pass counting its own photons would shrink the radius far less than a chain
+        pass in its place. A uniform pass updates each pixel's radius by the last chain pass's
+        count instead, and the radius goes as a render of chain passes would. A rule fixed
+        before the pass, it keeps the estimator as it was: each pass estimates the pixel at the
+        radius it is given. (Scaling a uniform pass's counts to a chain pass's left the radius
+        larger: SPPM's update shrinks a radius by at most sqrt(alpha) per pass, however many
+        photons it counts. What kept light-gap's radius was photon_passes.MIN_RATIO;
+        docs/guiding.md, "Uniform passes where the chains do not pay".)"""
         return self.uniform_passes_on and self.uniform_pass
 
     def _measures_bias(self) -> bool:
