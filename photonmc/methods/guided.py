@@ -49,7 +49,7 @@ from ..kernels.sampling import luminance
 from .clusters import UNKNOWN, HitDensityClusters
 from .effort import UniformWeight, uniform_weight_option
 from .photon_passes import PhotonPassChoice
-from .sppm import FIXED_ONE, Sppm, _HashSource
+from .sppm import FIXED_ONE, Sppm, HashSource
 from ..taichi_frontend import data_oriented
 
 REGENERATIONS = 10       # visible uniform proposals each chain should see per pass
@@ -470,6 +470,8 @@ class GuidedPhotons(Sppm):
 
     @ti.kernel
     def _set_uniform_visitors(self):
+        """Visitor slots 0 and 1 (uniform passes need two ladders: uniform_passes_on) deposit
+        with weight 1 into the uniform photons' accumulator and nothing into the levels'."""
         for v in range(2):
             self.visit_mode[v] = DEPOSIT
             self.flux_weight[v][self.n_levels] = 1.0
@@ -480,7 +482,7 @@ class GuidedPhotons(Sppm):
         with its random numbers as sppm's photon p of this iteration."""
         for p in range(n_photons):
             key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
-            _, dims = trace_photon(self.dscene, _HashSource, key, self, p & 1, ti.static(self.max_photon_segments))
+            _, dims = trace_photon(self.dscene, HashSource, key, self, p & 1, ti.static(self.max_photon_segments))
             ti.atomic_add(self.paths_traced[None], 1)
             ti.atomic_add(self.counters[3], photon_segments(dims))
 

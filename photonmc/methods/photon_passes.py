@@ -75,8 +75,7 @@ class PhotonPassChoice:
             return True
         if not self.weight_uniform or not self.weight_chain:
             return False
-        self.uniform_wins = (self.ratio > MIN_RATIO and
-                             self.ratio * self.work_chain / self.weight_chain > self.work_uniform / self.weight_uniform)
+        self.uniform_wins = self.ratio * self.work_chain / self.weight_chain > self.work_uniform / self.weight_uniform
         return self.uniform_wins and k % CHAIN_EVERY != 0
 
     def observe(self, uniform: bool, steps: int, segments: float, deposits: float) -> None:

@@ -65,7 +65,7 @@ CameraPath = ti.types.struct(direct=vec3, pixel=ti.i32, r_abs=ti.f32, r_per_dist
                              matched=ti.i32)
 
 
-class _HashSource:
+class HashSource:
     """Primary samples for plain photon tracing: hashed from (seed, photon, iteration)."""
 
     @staticmethod
@@ -510,7 +510,7 @@ class Sppm(Method):
     def _photon_pass(self, seed: ti.u32, iteration: ti.u32, n_photons: ti.i32, max_segments: ti.i32):
         for p in range(n_photons):
             key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
-            used, dims = trace_photon(self.dscene, _HashSource, key, self, p & 1, max_segments)
+            used, dims = trace_photon(self.dscene, HashSource, key, self, p & 1, max_segments)
             if used:
                 ti.atomic_add(self.counters[0], 1)
             ti.atomic_add(self.counters[3], photon_segments(dims))

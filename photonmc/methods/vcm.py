@@ -39,7 +39,7 @@ from .base import Method
 from .light_balance import LightPathBalance
 from . import merge_radius
 from .merge_radius import MergeRadius
-from .sppm import _HashSource
+from .sppm import HashSource
 from ..taichi_frontend import data_oriented
 
 # name -> (connections incl. next-event estimation, merging, light tracing)
@@ -339,7 +339,7 @@ class Vcm(Method):
             store.clear_paths(n_light, serial_paths)
         for p in range(n_light):
             key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
-            used, dims = trace_photon(self.dscene, _HashSource, key, self, p, max_segments)
+            used, dims = trace_photon(self.dscene, HashSource, key, self, p, max_segments)
             if used:
                 ti.atomic_add(self.counters[0], 1)
             if ti.static(self.balanced):
