@@ -40,6 +40,7 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "doorway": ("../tools/heldout/doorway.xml", "../../tools/heldout/doorway-64.exr", {"res": "64"}),
           # Held out from stop 57's clipped discs.
           "thick-jamb": ("../tools/heldout/thick-jamb.xml", "../../tools/heldout/thick-jamb-64.exr", {"res": "64"}),
+          "shelf-nook": ("../tools/heldout/shelf-nook.xml", "../../tools/heldout/shelf-nook-64.exr", {"res": "64"}),
           # Held out from the guided photons' work (stops 29 and 31).
           "cellar-hatch": ("../tools/heldout/cellar-hatch.xml", "../../tools/heldout/cellar-hatch-64.exr",
                            {"res": "64"}),

@@ -43,13 +43,12 @@ from ..kernels.mcmc import (
     ChainPool,
 )
 from ..kernels.photon import BOUNCE_DIMS, LIGHT_DIMS, dimensions, photon_segments, trace_photon
-from ..kernels import rng
 from ..kernels.pss_guide import PAIRS, PssGuide
 from ..kernels.sampling import luminance
 from .clusters import UNKNOWN, HitDensityClusters
 from .effort import UniformWeight, uniform_weight_option
 from .photon_passes import PhotonPassChoice
-from .sppm import FIXED_ONE, Sppm, HashSource
+from .sppm import FIXED_ONE, Sppm
 from ..taichi_frontend import data_oriented
 
 REGENERATIONS = 10       # visible uniform proposals each chain should see per pass
@@ -459,7 +458,9 @@ class GuidedPhotons(Sppm):
         self.flux_weight.fill(0.0)
         self.hit_weight.fill(0.0)
         self._set_uniform_visitors()
-        self._uniform_photons(self.seed_u32, it, n_p)
+        # sppm's photon pass, deposited through this class's visitor (photon p by slot p & 1)
+        self._photon_pass(self.seed_u32, it, n_p, self.max_photon_segments)
+        self.paths_traced[None] += n_p
         raw = np.zeros(self.n_levels + 1)
         raw[-1] = self.power_scale / FIXED_ONE
         upload_fields([(self.level_scale, raw), (self.raw_scale, raw)])
@@ -475,16 +476,6 @@ class GuidedPhotons(Sppm):
         for v in range(2):
             self.visit_mode[v] = DEPOSIT
             self.flux_weight[v][self.n_levels] = 1.0
-
-    @ti.kernel
-    def _uniform_photons(self, seed: ti.u32, iteration: ti.u32, n_photons: ti.i32):
-        """Photon p deposits through visitor slot p & 1 (the even and odd halves, effort.py),
-        with its random numbers as sppm's photon p of this iteration."""
-        for p in range(n_photons):
-            key = rng.seed(seed, ti.u32(p), iteration * ti.u32(2) + ti.u32(1))
-            _, dims = trace_photon(self.dscene, HashSource, key, self, p & 1, ti.static(self.max_photon_segments))
-            ti.atomic_add(self.paths_traced[None], 1)
-            ti.atomic_add(self.counters[3], photon_segments(dims))
 
     def _iterate_chains(self):
         it = self.iterations

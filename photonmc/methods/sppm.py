@@ -38,8 +38,6 @@ from ..kernels.camera_walk import STOP, THROUGHPUT_ROULETTE, camera_walk
 from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.direct import next_event
 from ..kernels.disc_clip import disc_shares
-
-PROBE_ALL_EVERY = 8      # --disc clipped: passes between probes of every pixel's MPs
 from ..kernels.batch import fill_fields
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import HashGrid
@@ -50,6 +48,7 @@ from .effort import EffortBalance
 from .merge_radius import ALPHA_FAST, BIAS_MIN_PASSES, BIAS_Z, bias_outweighs_noise
 from ..taichi_frontend import data_oriented
 
+PROBE_ALL_EVERY = 8      # --disc clipped: passes between probes of every pixel's MPs
 FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flux
 PI = math.pi                      # use as ti.f64(PI): a bare literal is a float32 constant (default_fp)
 MP_BUDGET = 1 << 20               # measurement points that --camera-paths auto may allocate
