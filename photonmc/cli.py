@@ -161,6 +161,12 @@ def _add_guiding_options(parser):
     g.add_argument("--spatial-levels", type=int, choices=[2, 3],
                    help="spatial-tf: 3 (default) ladders visibility -> inverse area -> spatial importance; "
                         "2 leaves out the inverse-area level")
+    g.add_argument("--spatial-updates", choices=["pass", "epochs"],
+                   help="spatial-tf: pass (default): the upper levels' targets follow each pass's points and "
+                        "the ladders start again every pass, discarding its first half; epochs: the targets "
+                        "are held from one epoch start (chain passes 1, 2, 4, 8, ...) to the next, and the "
+                        "ladders keep their states between (docs/guiding.md, 'Spatial targets held for an "
+                        "epoch')")
 
 
 def _add_vcm_options(parser):
@@ -226,7 +232,7 @@ def _method_options(args) -> dict:
             "radius_rule": args.radius_rule, "disc": args.disc, "chains": args.chains,
             "target_acceptance": args.target_acceptance, "proposal_failures": args.proposal_failures,
             "expected_values": args.expected_values, "path_target": args.path_target,
-            "spatial_levels": args.spatial_levels,
+            "spatial_levels": args.spatial_levels, "spatial_updates": args.spatial_updates,
             "light_paths": args.light_paths, "techniques": args.techniques, "mis": args.mis,
             "large_step": args.large_step, "suffix_mutation": args.suffix_mutation,
             "mutation": args.mutation, "warm_start": args.warm_start,

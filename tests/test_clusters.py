@@ -84,3 +84,27 @@ def test_more_levels_than_the_cells_hold_are_refused():
     HitDensityClusters(np.zeros(3), np.ones(3), 16, levels=MAX_LEVELS).release()
     with pytest.raises(ValueError, match="levels"):
         HitDensityClusters(np.zeros(3), np.ones(3), 16, levels=MAX_LEVELS + 1)
+
+
+def test_frozen_statistics_hold_until_the_next_freeze():
+    """spatial-tf --spatial-updates epochs reads the statistics freeze() took (density and the
+    points' mean area per cell), whatever later passes accumulate, until it freezes again."""
+    rng = np.random.default_rng(2)
+    clusters = HitDensityClusters(np.zeros(3), np.ones(3), 1 << 16, levels=LEVELS, min_samples=1.0, frozen=True)
+    pos = _points(rng, 4000)
+    area = np.full(len(pos), 2e-4)
+    clusters.freeze()
+    assert np.isnan(clusters.frozen_values(pos)[0]).all()          # nothing accumulated before it
+    clusters.accumulate(pos, area, area * 3.0, np.full(len(pos), 2.0))
+    assert np.isnan(clusters.frozen_values(pos)[0]).all()          # held: not yet frozen
+    clusters.freeze()
+    rho, mean_area = clusters.frozen_values(pos)
+    assert np.mean(np.isclose(rho, 3.0, rtol=1e-5)) > 0.99
+    assert np.mean(np.isclose(mean_area, 2e-4, rtol=1e-5)) > 0.99
+    clusters.accumulate(pos, 2 * area, 2 * area * 5.0, np.full(len(pos), 2.0))   # a later pass
+    assert np.array_equal(clusters.frozen_values(pos)[0], rho, equal_nan=True)
+    clusters.freeze()
+    rho, mean_area = clusters.frozen_values(pos)
+    assert np.mean(np.isclose(rho, 4.0, rtol=1e-5)) > 0.99          # the mean of 3 and 5 per pass
+    assert np.mean(np.isclose(mean_area, 3e-4, rtol=1e-5)) > 0.99   # of 2e-4 and 4e-4
+

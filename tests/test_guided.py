@@ -33,10 +33,12 @@ def render(scene, method, iterations, seed=0, max_depth=None, **options):
                                             ("visibility", {"uniform_weight": 1.0}),
                                             ("spatial-tf", {"uniform_weight": 1.0}),
                                             ("spatial-tf", {"spatial_levels": 2}),
+                                            ("spatial-tf", {"spatial_updates": "epochs"}),
                                             ("visibility", {"pss_guide": 3})],
                          ids=["visibility", "visibility-suffix-moves", "visibility-block-moves", "spatial-tf",
                               "spatial-tf-expected-values", "spatial-tf-warm-start", "visibility-uniform-photons",
-                              "spatial-tf-uniform-photons", "spatial-tf-two-levels", "visibility-pss-guide"])
+                              "spatial-tf-uniform-photons", "spatial-tf-two-levels", "spatial-tf-epochs",
+                              "visibility-pss-guide"])
 def test_sphere_furnace(write_scene, method, options):
     """Inside an emitting diffuse sphere the answer is analytic and SPPM's density estimate has
     no blur bias: the Markov-chain estimators must hit it within noise. (Most photon paths are
@@ -237,6 +239,10 @@ def test_bad_options(options, message):
         prepare(scene, method="spatial-tf", options={"path_target": "mean"})
     with pytest.raises(SettingsError, match="--spatial-levels"):
         prepare(scene, method="spatial-tf", options={"spatial_levels": 4})
+    with pytest.raises(SettingsError, match="--spatial-updates"):
+        prepare(scene, method="spatial-tf", options={"spatial_updates": "sometimes"})
+    with pytest.raises(SettingsError, match="does not take --spatial-updates"):
+        prepare(scene, method="visibility", options={"spatial_updates": "epochs"})
     with pytest.raises(SettingsError, match="does not take --chains"):
         prepare(scene, method="sppm", options={"chains": 4})
     with pytest.raises(SettingsError, match="does not take --path-target"):

@@ -458,6 +458,22 @@ def test_resume_of_what_visibility_learned_equals_straight(tmp_path, options, ha
     p.release()
 
 
+def test_resume_across_a_spatial_epoch_equals_straight(tmp_path):
+    """spatial-tf --spatial-updates epochs: the frozen statistics, the epoch's scales and the
+    chain-pass count that sets the next epoch start are part of the state; saved after 6
+    chain passes, the render resumes through the epoch start at pass 8 to the straight image."""
+    j = Job(scene=CORNELL, params=SMALL, method="spatial-tf", seed=3,
+            options={"photons": 512, "spatial_updates": "epochs", "uniform_passes": "off"})
+    straight = rendered(j, 12)
+    [saved] = state.load(state.save(tmp_path / "epochs.state", [rendered(j, 6)]))
+    assert saved.plain["chain_passes"] == 6
+    p, _ = resume(saved)
+    for _ in range(6):
+        p.method.iterate()
+    assert np.array_equal(p.method.image(), straight.image)
+    p.release()
+
+
 def test_resume_with_clipped_discs_equals_straight(tmp_path):
     """sppm --disc clipped: which pixels have shown an edge (and so are probed every pass) is
     part of the state, so the resumed render probes the same points and gives the same image."""

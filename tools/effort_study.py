@@ -82,9 +82,11 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "glass-table": ("../tools/heldout/glass-table.xml", "../../tools/heldout/glass-table-64.exr", {"res": "64"})}
 
 
-def render_for(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, after_pass=None):
+def render_for(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, after_pass=None,
+               after_render=None):
     """`seconds` of rendering after a warm-up iteration (compilation excluded); after_pass(m)
-    is called after each pass. Returns (image, iterations, photons or chain steps per pass)."""
+    is called after each pass, after_render(m, elapsed seconds) once at the end, before the
+    method is released. Returns (image, iterations, photons or chain steps per pass)."""
     path = REPO / "scenes" / scene
     job = Job(scene=str(path.resolve() if path.suffix == ".xml" else path / "scene.xml"), params=params, method=method, options=options,
               seed=seed)
@@ -98,6 +100,8 @@ def render_for(scene: str, params: dict, method: str, options: dict, seed: int, 
             m.iterate()
             if after_pass is not None:
                 after_pass(m)
+        if after_render is not None:
+            after_render(m, time.perf_counter() - t0)
         # photons per pass (sppm and the guided methods) or chain steps per pass (mbe)
         return m.image(), m.iterations, getattr(m, "photons_per_iteration", getattr(m, "steps_last", None))
     finally:

@@ -40,7 +40,10 @@ class HitDensityClusters:
     # Zero between passes (close_pass empties them), so a render state need not keep them.
     TRANSIENT = ("pass_sums", "touched", "n_touched")
 
-    def __init__(self, lo, hi, n_points: int, levels: int = 10, min_samples: float = 64.0):
+    def __init__(self, lo, hi, n_points: int, levels: int = 10, min_samples: float = 64.0, frozen: bool = False):
+        """frozen: also keep a copy of each slot's density and mean point area, taken by
+        freeze() and read by frozen_at(), which later passes' statistics do not change (the
+        spatial target's epochs, docs/guiding.md "Spatial targets held for an epoch")."""
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
         self.lo = lo
         self.size = float(max((hi - lo).max(), 1e-12)) * 1.0001
@@ -52,17 +55,22 @@ class HitDensityClusters:
         # slot is written by one thread in a fixed order (determinism). A level with at most
         # `hashed` cells indexes them directly (no collisions); a finer one hashes its cells
         # into `hashed` slots.
-        # Memory: 52 bytes a slot; 3.4 M slots (175 MB) for the 256x256 default render, whose
-        # single shared table of 4 M slots in NumPy took 100 MB (docs/performance.md).
+        # Memory: 68 bytes a slot (76 with the frozen copy); 3.4 M slots (230 MB) for the
+        # 256x256 default render. (52 bytes before the mean area; a single shared table of 4 M
+        # slots in NumPy took 100 MB: docs/performance.md.)
         hashed = 1 << int(np.clip(np.ceil(np.log2(max(n_points * levels, 1024))), 10, 20))
         sizes = [min(8 ** level, hashed) for level in range(levels)]
         offsets = np.concatenate(([0], np.cumsum(sizes)[:-1]))
         n = int(sum(sizes))
         f = FieldGroup("clusters")
         # Per slot: the sum over passes of (hits / area) in the cell (kappa), the passes in
-        # which it held MPs, and the distinct chain states that hit its MPs.
-        self.stats = f.vector(3, ti.f64, n)
-        self.pass_sums = f.vector(3, ti.f64, n)     # this pass's hits, area, samples per slot
+        # which it held MPs, the distinct chain states that hit its MPs, and the sum over
+        # passes of its MPs' mean area.
+        self.stats = f.vector(4, ti.f64, n)
+        self.pass_sums = f.vector(4, ti.f64, n)     # this pass's hits, area, samples, points per slot
+        self.has_frozen = bool(frozen)
+        if self.has_frozen:
+            self.frozen = f.vector(2, ti.f32, n)    # freeze(): density (or UNKNOWN), mean MP area
         self.touched = f.scalar(ti.i32, n)          # per level, the slots this pass filled, in order
         self.n_touched = f.scalar(ti.i32, levels)
         # The cube's corner and side: a field, not constants, so that the kernels compile
@@ -81,6 +89,23 @@ class HitDensityClusters:
         self.stats.fill(0.0)
         self.pass_sums.fill(0.0)
         self.n_touched.fill(0)
+        if self.has_frozen:
+            self.frozen.fill(UNKNOWN)
+
+    def freeze(self):
+        """The statistics so far become those frozen_at() reads, until the next freeze()."""
+        self._freeze()
+
+    @ti.kernel
+    def _freeze(self):
+        for s in self.stats:
+            st = self.stats[s]
+            rho = ti.f64(UNKNOWN)
+            area = ti.f64(0.0)
+            if st[2] >= ti.static(self.min_samples) and st[1] > 0.0:
+                rho = st[0] / st[1]
+                area = st[3] / st[1]
+            self.frozen[s] = ti.Vector([ti.cast(rho, ti.f32), ti.cast(area, ti.f32)])
 
     # -- the table, for kernels ----------------------------------------------------------------
     @ti.func
@@ -125,6 +150,22 @@ class HitDensityClusters:
         return rho
 
     @ti.func
+    def frozen_at(self, p):
+        """density_at and the mean MP area there, as freeze() last took them: (UNKNOWN, 0)
+        where no level had enough samples."""
+        cells = self._finest_cell(p)
+        out = ti.Vector([UNKNOWN, 0.0], ti.f32)
+        found = False
+        level = ti.cast(ti.static(self.levels - 1), ti.i32)          # finest first
+        while level >= 0 and not found:
+            fz = self.frozen[self._slot(cells, level)]
+            if fz[0] != UNKNOWN:
+                out = fz
+                found = True
+            level -= 1
+        return out
+
+    @ti.func
     def accumulate_points(self, points: ti.template(), n):
         """One pass's hits from n points: `points.cluster_point(j)` gives (valid, position,
         area pi R^2, hits, samples) of point j. Per cell, the pass sums of its points' hits,
@@ -141,21 +182,21 @@ class HitDensityClusters:
                     if sums[1] == 0.0:     # first point in this slot this pass (areas are > 0)
                         self.touched[offset + self.n_touched[level]] = s
                         self.n_touched[level] += 1
-                    self.pass_sums[s] = sums + ti.Vector([hits, area, samples], ti.f64)
+                    self.pass_sums[s] = sums + ti.Vector([hits, area, samples, 1.0], ti.f64)
 
     @ti.func
     def close_pass(self):
-        """Per slot filled this pass: kappa += its hits / its area, one more pass, its samples;
-        its pass sums emptied. Two cells that share a slot add up there (a collision changes
-        the importance, never the estimate)."""
+        """Per slot filled this pass: kappa += its hits / its area, one more pass, its samples,
+        its points' mean area; its pass sums emptied. Two cells that share a slot add up there
+        (a collision changes the importance, never the estimate)."""
         ti.loop_config(block_dim=1)
         for level in range(self.levels):
             offset = self.level_table[level][0]
             for i in range(self.n_touched[level]):
                 s = self.touched[offset + i]
                 sums = self.pass_sums[s]
-                self.stats[s] += ti.Vector([sums[0] / sums[1], 1.0, sums[2]], ti.f64)
-                self.pass_sums[s] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+                self.stats[s] += ti.Vector([sums[0] / sums[1], 1.0, sums[2], sums[1] / sums[3]], ti.f64)
+                self.pass_sums[s] = ti.Vector([0.0, 0.0, 0.0, 0.0], ti.f64)
             self.n_touched[level] = 0
 
     # -- the same, for arrays (tests and tools) ------------------------------------------------
@@ -174,6 +215,21 @@ class HitDensityClusters:
         if len(pos):
             self._density(np.ascontiguousarray(pos, np.float64), rho)
         return np.where(rho == UNKNOWN, np.nan, rho)
+
+    def frozen_values(self, pos) -> tuple[np.ndarray, np.ndarray]:
+        """frozen_at for an array of points: (density, mean MP area), NaN where none is known."""
+        out = np.empty((len(pos), 2), np.float32)
+        if len(pos):
+            self._frozen(np.ascontiguousarray(pos, np.float64), out)
+        unknown = out[:, 0] == UNKNOWN
+        return np.where(unknown, np.nan, out[:, 0]), np.where(unknown, np.nan, out[:, 1])
+
+    @ti.kernel
+    def _frozen(self, pos: ti.types.ndarray(), out: ti.types.ndarray()):
+        for j in range(pos.shape[0]):
+            v = self.frozen_at(ti.Vector([pos[j, 0], pos[j, 1], pos[j, 2]]))
+            out[j, 0] = v[0]
+            out[j, 1] = v[1]
 
     @ti.kernel
     def _accumulate(self, points: ti.template(), n: ti.i32):

@@ -115,6 +115,9 @@ class GuidedPhotons(Sppm):
     # photons' estimate").
     uniform_accumulator = True
     path_target_sum = False
+    # spatial-tf's --spatial-updates epochs: upper levels' targets held fixed within an epoch
+    # (SpatialTarget); False here and for spatial-tf's default.
+    epochs = False
     # Passes last until every chain regenerates (_steps_this_pass), so where the error is
     # camera-side they would starve the camera passes: the effort balance chooses how many
     # camera paths per pixel share each photon pass (docs/effort.md).
@@ -184,7 +187,7 @@ class GuidedPhotons(Sppm):
         self.pool = ChainPool(self.n_chains, self.n_levels, dims, self.drop_failures, self.expected_values,
                               burn_in=burn_in if self.n_levels > 1 else 0.0,
                               suffix_mutation=self.suffix_mutation, suffix_starts=starts, block_starts=blocks,
-                              warm_start=bool(opts["warm_start"]), uniform_estimate=True,
+                              warm_start=bool(opts["warm_start"]) or self.epochs, uniform_estimate=True,
                               adopted_across_passes=True)
         f = FieldGroup(f"guided-{self.name}")
         L, n, c = self.n_levels, self.n_mp, self.n_chains
@@ -226,6 +229,8 @@ class GuidedPhotons(Sppm):
             self.mp_hit_stats = f.vector(2, ti.f64, self.n_pixels)   # hits and samples of the first path's MPs
             self.target_sums = f.vector(5, ti.f64, ())    # _spatial_targets' maxima and sums
             self.hit_scale = f.scalar(ti.f64, L)          # each level's hits -> uniform-path equivalents
+            # --spatial-updates epochs: the epoch's A_max, rho_max and the two targets' scales
+            self.epoch_norm = f.vector(4, ti.f64, ())
         f.finalize()
         self.guide_fields = f
         self._reset_guided()
@@ -264,6 +269,7 @@ class GuidedPhotons(Sppm):
         self.pass_choice = PhotonPassChoice()
         self.uniform_pass = False       # whether the pass being made is a uniform pass
         self.previous_uniform = False   # and the one before it
+        self.chain_passes = 0
 
     # -- the model interface of ChainPool -------------------------------------------------
     @ti.func
@@ -397,9 +403,9 @@ class GuidedPhotons(Sppm):
             if self.accepts(j, x, n, wi, segments):
                 if probing:
                     hit = 1
-                    if ti.static(self.n_levels == 1):
-                        break
-                    if ti.static(self.n_levels > 1):
+                    if ti.static(self.n_levels == 1 or self.epochs):
+                        break       # epochs: the upper levels read the vertex, below
+                    if ti.static(self.n_levels > 1 and not self.epochs):
                         if ti.static(self.n_levels == 3):
                             t[1] = ti.max(t[1], self.inv_area[j])
                         top = ti.static(self.n_levels - 1)        # the spatial level
@@ -421,6 +427,15 @@ class GuidedPhotons(Sppm):
                                                   ti.cast(ti.cast(hw[level], ti.f64) * FIXED_ONE + 0.5, ti.i64))
         if probing and hit:
             t[0] = 1.0
+            if ti.static(self.epochs):
+                w = self.world_targets(x)
+                if ti.static(self.n_levels == 3):
+                    t[1] = ti.max(t[1], w[0])
+                top = ti.static(self.n_levels - 1)
+                if ti.static(self.path_target_sum):
+                    t[top] += w[1]
+                else:
+                    t[top] = ti.max(t[top], w[1])
             self.target_scratch[vkey] = t
             if ti.static(self.n_levels == 1):
                 hit = 2       # V(u) is known: the rest of the path does not matter...
@@ -482,6 +497,7 @@ class GuidedPhotons(Sppm):
         n_p = self._steps_this_pass()
         self._measurement_points(it)
         self._prepare_targets()
+        self.chain_passes += 1
         guide = self.pss_guide
         tallies = self.pool.run_pass(self, self.seed_u32, it, n_p, extra=guide.readable() if guide else ())
         b = self.pool.normalisations(tallies)
@@ -668,7 +684,7 @@ class SpatialTarget(GuidedPhotons):
     name = "spatial-tf"
     n_levels = 3
     level_names = ("visibility", "inverse-area", "spatial")
-    OPTIONS = {**GuidedPhotons.OPTIONS, "path_target": "max", "spatial_levels": 3}
+    OPTIONS = {**GuidedPhotons.OPTIONS, "path_target": "max", "spatial_levels": 3, "spatial_updates": "pass"}
     # this pass's MPs and per-MP targets, set by _prepare_targets, and their hit counts
     TRANSIENT = Sppm.TRANSIENT + ("inv_area", "importance", "hits", "rho", "target_sums",
                                     "mp_hit_stats", "hit_scale")
@@ -687,9 +703,19 @@ class SpatialTarget(GuidedPhotons):
         if int(levels) == 2:
             self.n_levels = 2
             self.level_names = ("visibility", "spatial")
+        # pass: the upper levels' targets follow each pass's MPs and statistics, and the ladders
+        # start again every pass, discarding its first half (LADDER_BURN_IN). epochs: they are
+        # world-space functions of the photon's depositing vertices, held fixed from one epoch
+        # start (chain passes 0, 1, 2, 4, 8, ...) to the next, so that the upper levels keep their
+        # states and discard nothing within an epoch (docs/guiding.md, "Spatial targets held for
+        # an epoch").
+        if opts["spatial_updates"] not in ("pass", "epochs"):
+            raise SettingsError(f"--spatial-updates must be 'pass' or 'epochs', got '{opts['spatial_updates']}'")
+        self.epochs = opts["spatial_updates"] == "epochs"
         super().__init__(dscene, settings)
         lo, hi = dscene.scene.bounds
-        self.clusters = HitDensityClusters(lo, hi, self.n_pixels)
+        self.clusters = HitDensityClusters(lo, hi, self.n_pixels, frozen=self.epochs)
+        self.epoch_burn_in = self.pool.burn_in
 
     def release(self):
         self.clusters.release()
@@ -700,7 +726,68 @@ class SpatialTarget(GuidedPhotons):
         self.clusters.reset()
 
     def _prepare_targets(self):
-        self._spatial_targets(self.camera_paths * self.n_pixels)
+        n = self.camera_paths * self.n_pixels
+        if not self.epochs:
+            self._spatial_targets(n)
+            return
+        k = self.chain_passes
+        if k & (k - 1) == 0:        # an epoch starts: new targets, the ladders burn in again
+            self.clusters.freeze()
+            self._epoch_norms(n)
+            self.pool.burn_in = self.epoch_burn_in
+        else:
+            self.pool.burn_in = 0.0
+
+    @ti.kernel
+    def _epoch_norms(self, n: ti.i32):
+        """The epoch's A_max and rho_max over this pass's valid MPs, from the frozen statistics,
+        and the scales that make both world targets average 1 over those MPs (in a fixed order:
+        determinism)."""
+        self.epoch_norm[None] = ti.Vector([0.0, 0.0, 1.0, 1.0], ti.f64)
+        ti.loop_config(serialize=True)
+        for j in range(n):
+            if self.mp_valid[j]:
+                fz = self.clusters.frozen_at(self.mp_p[j])
+                if fz[0] != UNKNOWN:
+                    norm = self.epoch_norm[None]
+                    self.epoch_norm[None][0] = ti.max(norm[0], ti.cast(fz[1], ti.f64))
+                    self.epoch_norm[None][1] = ti.max(norm[1], ti.cast(fz[0], ti.f64))
+        sums = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+        ti.loop_config(serialize=True)
+        for j in range(n):
+            if self.mp_valid[j]:
+                ia, imp = self._world_value(self.clusters.frozen_at(self.mp_p[j]))
+                sums += ti.Vector([ia, imp, 1.0], ti.f64)
+        if sums[2] > 0.0:
+            self.epoch_norm[None][2] = sums[2] / sums[0]
+            self.epoch_norm[None][3] = sums[2] / sums[1]
+
+    @ti.func
+    def _world_value(self, fz):
+        """The inverse-area target and the spatial importance of _area_and_importance, from a
+        point's frozen (density, mean MP area) and the epoch's maxima; 1 where none is known."""
+        norm = self.epoch_norm[None]
+        ia, imp = ti.f64(1.0), ti.f64(1.0)
+        if norm[0] > 0.0:
+            area = norm[0]         # unknown: the largest area, the lowest target
+            if fz[0] != UNKNOWN:
+                area = ti.cast(fz[1], ti.f64)
+            ia = 1.0 / (area / norm[0] + EPS_AREA)
+            imp = ia
+        if norm[1] > 0.0:
+            rho = norm[1]          # unknown: the highest density, the lowest importance
+            if fz[0] != UNKNOWN:
+                rho = ti.cast(fz[0], ti.f64)
+            imp = ia / (rho / norm[1] + EPS_DENSITY)
+        return ia, imp
+
+    @ti.func
+    def world_targets(self, x):
+        """(inverse-area target, spatial importance) of a depositing photon vertex at x, each
+        scaled to mean 1 over the epoch's first MPs."""
+        ia, imp = self._world_value(self.clusters.frozen_at(x))
+        norm = self.epoch_norm[None]
+        return ti.Vector([ia * norm[2], imp * norm[3]], ti.f32)
 
     def _after_pass(self, level_scale):
         # Only the first camera path's MPs (one per pixel) feed the statistics: a cell's
