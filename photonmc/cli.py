@@ -163,10 +163,10 @@ def _add_guiding_options(parser):
                         "2 leaves out the inverse-area level")
     g.add_argument("--spatial-updates", choices=["pass", "epochs"],
                    help="spatial-tf: pass (default): the upper levels' targets follow each pass's points and "
-                        "the ladders start again every pass, discarding its first half; epochs: the targets "
-                        "are held from one epoch start (chain passes 1, 2, 4, 8, ...) to the next, and the "
-                        "ladders keep their states between (docs/guiding.md, 'Spatial targets held for an "
-                        "epoch')")
+                        "the ladders start again every pass, discarding its first half; epochs: the targets are "
+                        "held from one epoch start (chain passes 1, 2, 4, 8, ...) to the next, and the ladders "
+                        "keep their states between (measured, not the default: docs/guiding.md, 'Spatial "
+                        "targets held for an epoch')")
 
 
 def _add_vcm_options(parser):
@@ -188,7 +188,7 @@ def _add_vcm_options(parser):
                    help="mbe: a contribution chain starts each pass from its last state where that still "
                         "contributes (default); --no-warm-start: from a bootstrap resampled in the pass "
                         "(docs/mbe.md). spatial-tf: its upper levels likewise (default off; measured in "
-                        "docs/guiding.md)")
+                        "docs/guiding.md; --spatial-updates epochs always keeps them)")
     g.add_argument("--uniform-weight", metavar="auto|B",
                    help="mbe, visibility, spatial-tf: the share carried by the uniform proposals' own "
                         "estimate (plain Monte Carlo: vcm's light subpaths, sppm's photons) against the "

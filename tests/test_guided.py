@@ -29,7 +29,7 @@ def render(scene, method, iterations, seed=0, max_depth=None, **options):
 @pytest.mark.parametrize("method,options", [("visibility", {}), ("visibility", {"suffix_mutation": 0.5}),
                                             ("visibility", {"mutation": "blocks"}),
                                             ("spatial-tf", {}), ("spatial-tf", {"expected_values": True}),
-                                            ("spatial-tf", {"warm_start": True, "ladder_burn_in": 0.25}),
+                                            ("spatial-tf", {"spatial_updates": "pass", "warm_start": True, "ladder_burn_in": 0.25}),
                                             ("visibility", {"uniform_weight": 1.0}),
                                             ("spatial-tf", {"uniform_weight": 1.0}),
                                             ("spatial-tf", {"spatial_levels": 2}),
@@ -275,8 +275,10 @@ def test_two_spatial_levels_report_one_exchange(write_scene):
 
 
 @pytest.mark.convergence
-@pytest.mark.parametrize("method", GUIDED)
-def test_guided_methods_converge_on_the_light_gap(method):
+@pytest.mark.parametrize("method,options", [("visibility", {}), ("spatial-tf", {}),
+                                            ("spatial-tf", {"spatial_updates": "epochs"})],
+                         ids=["visibility", "spatial-tf", "spatial-tf-epochs"])
+def test_guided_methods_converge_on_the_light_gap(method, options):
     """Against the 65,536-spp Mitsuba reference, between 50 and 400 iterations: RMSE falls,
     the mean outside the slit band ends within 2 %, and the bias inside the band shrinks.
     The band (the slit's grazing-lit faces, ~20 % of the image) carries SPPM's boundary bias,
@@ -286,7 +288,7 @@ def test_guided_methods_converge_on_the_light_gap(method):
     band = slit_band(ref)
     assert 0.1 < band.mean() < 0.3
     scene = load_scene(SCENES / "light-gap" / "scene.xml", {"res": 64})
-    p = prepare(scene, method=method, seed=1)
+    p = prepare(scene, method=method, seed=1, options=options)
     errors = {}
 
     def bias(img, columns):
@@ -307,6 +309,8 @@ def test_guided_methods_converge_on_the_light_gap(method):
     # The ladder's chained normalisations b_{l+1} = b_l E_l[T_{l+1}/T_l] against the plain
     # means of T_l over the same passes' uniform proposals (unbiased, but noisier per pass):
     # averaged over 400 passes they must agree (measured within 0.15 %, docs/guiding.md).
+    # With --spatial-updates epochs, recording upper levels restarted by copy within an epoch
+    # put level 2's 1.26 % off; a ladder that restarts one now burns in (0.6 %).
     drift = [lv["normalisation_mean"] / lv["normalisation_uniform_mean"] - 1 for lv in levels]
     print(f"{method} light-gap: {errors}, chained/uniform normalisations - 1: {drift}")
     assert errors[400]["rmse"] < 0.8 * errors[50]["rmse"]

@@ -222,6 +222,10 @@ class ChainPool:
         if not 0.0 < bootstrap < 1.0:
             raise ValueError(f"bootstrap is a fraction of each pass in (0, 1), got {bootstrap}")
         self.burn_in = float(burn_in)
+        # With the warm start: the share of a pass a ladder discards when one of its upper
+        # levels lost its kept state and starts again from a copy (set per pass by the caller;
+        # spatial-tf's epochs, docs/guiding.md "Spatial targets held for an epoch").
+        self.restart_burn_in = 0.0
         if base_records_in_burn_in and not binary_base:
             raise ValueError("only a binary level 0 is exact during the burn-in")
         # A binary level 0 is exact from its first visible uniform proposal; only exchanges with
@@ -360,8 +364,8 @@ class ChainPool:
                 ((self.block_counters,) if self.n_blocks > 1 else ()))
         ints, floats = reader.arrays()
         with _chain_kernel_compilation():
-            self._run(model, seed, iteration, steps, self.burn_in, self.bootstrap, self.large_step,
-                      self.mutation_probability, reader, ints, floats)
+            self._run(model, seed, iteration, steps, self.burn_in, self.restart_burn_in, self.bootstrap,
+                      self.large_step, self.mutation_probability, reader, ints, floats)
         return self._tallies(reader.unpack(ints, floats), len(extra))
 
     def _tallies(self, values: list, n_extra: int) -> dict:
@@ -431,13 +435,15 @@ class ChainPool:
     # -- kernels ------------------------------------------------------------------------
     @ti.kernel
     def _run(self, model: ti.template(), seed: ti.u32, iteration: ti.u32, steps: ti.i32, burn_in: ti.f32,
-             bootstrap: ti.f32, large_step: ti.f32, mutate: ti.f32, reader: ti.template(), ints: ti.types.ndarray(),
-             floats: ti.types.ndarray()):
+             restart_burn: ti.f32, bootstrap: ti.f32, large_step: ti.f32, mutate: ti.f32, reader: ti.template(),
+             ints: ti.types.ndarray(), floats: ti.types.ndarray()):
         """Per ladder: PROBE (visit every level's stored state once, _step) and the warm
         start, its share of `steps` chain steps (STEPS), DEPOSIT (visit every level's state
         again). large_step: this pass's probability of a uniform proposal (one move per
         step); mutate: the probability that a mutation is made (otherwise skipped, the state
-        recorded again). The visits draw no random numbers."""
+        recorded again); restart_burn: with the warm start, the share a ladder discards when
+        one of its upper levels lost its state (a copy starts it again, unmixed). The visits
+        draw no random numbers."""
         self._clear_pass_tallies()
         base = steps // self.n_chains
         extra = steps % self.n_chains
@@ -465,6 +471,8 @@ class ChainPool:
                     if ti.static(self.warm_start):
                         if task == PROBE:
                             self._warm_start(c)
+                            if restart_burn > 0.0 and self._lost_upper_state(c):
+                                burn = ti.max(burn, ti.cast(restart_burn * n, ti.i32))
         reader.copy(ints, floats)       # the tallies, back with this launch
 
     @ti.func
@@ -476,6 +484,15 @@ class ChainPool:
             ti.loop_config(serialize=ti.static(runtime.serial_loop(scalar_count(f))))
             for i in ti.grouped(ti.ndrange(*f.shape)):
                 f[i] = 0
+
+    @ti.func
+    def _lost_upper_state(self, c) -> ti.i32:
+        """After the warm start: whether an upper level of ladder c has no kept state."""
+        lost = 0
+        for level in ti.static(range(1, self.n_levels)):
+            if not self.fresh[self.level_slot[c, level]]:
+                lost = 1
+        return lost
 
     @ti.func
     def _warm_start(self, c):

@@ -115,8 +115,8 @@ class GuidedPhotons(Sppm):
     # photons' estimate").
     uniform_accumulator = True
     path_target_sum = False
-    # spatial-tf's --spatial-updates epochs: upper levels' targets held fixed within an epoch
-    # (SpatialTarget); False here and for spatial-tf's default.
+    # spatial-tf's --spatial-updates epochs (an option): upper levels' targets held fixed
+    # within an epoch (SpatialTarget); visibility has no upper level.
     epochs = False
     # Passes last until every chain regenerates (_steps_this_pass), so where the error is
     # camera-side they would starve the camera passes: the effort balance chooses how many
@@ -703,12 +703,13 @@ class SpatialTarget(GuidedPhotons):
         if int(levels) == 2:
             self.n_levels = 2
             self.level_names = ("visibility", "spatial")
-        # pass: the upper levels' targets follow each pass's MPs and statistics, and the ladders
-        # start again every pass, discarding its first half (LADDER_BURN_IN). epochs: they are
-        # world-space functions of the photon's depositing vertices, held fixed from one epoch
-        # start (chain passes 0, 1, 2, 4, 8, ...) to the next, so that the upper levels keep their
-        # states and discard nothing within an epoch (docs/guiding.md, "Spatial targets held for
-        # an epoch").
+        # pass (the default): the upper levels' targets follow each pass's MPs and statistics,
+        # and the ladders start again every pass, discarding its first half (LADDER_BURN_IN).
+        # epochs (an option, measured): they are world-space functions of the photon's
+        # depositing vertices, held fixed from one epoch start (chain passes 0, 1, 2, 4, 8, ...)
+        # to the next, so that the upper levels keep their states (the warm start, whatever
+        # --warm-start says) and a ladder discards half a pass within an epoch only where an
+        # upper level lost its state. docs/guiding.md, "Spatial targets held for an epoch".
         if opts["spatial_updates"] not in ("pass", "epochs"):
             raise SettingsError(f"--spatial-updates must be 'pass' or 'epochs', got '{opts['spatial_updates']}'")
         self.epochs = opts["spatial_updates"] == "epochs"
@@ -736,7 +737,10 @@ class SpatialTarget(GuidedPhotons):
             self._epoch_norms(n)
             self.pool.burn_in = self.epoch_burn_in
         else:
+            # within an epoch a ladder burns in only where an upper level lost its kept state
+            # (it no longer deposits into any of the pass's MPs) and starts again from a copy
             self.pool.burn_in = 0.0
+            self.pool.restart_burn_in = self.epoch_burn_in
 
     @ti.kernel
     def _epoch_norms(self, n: ti.i32):
