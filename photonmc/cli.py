@@ -164,7 +164,7 @@ def _add_guiding_options(parser):
     g.add_argument("--spatial-updates", choices=["pass", "epochs"],
                    help="spatial-tf: pass (default): the upper levels' targets follow each pass's points and "
                         "the ladders start again every pass, discarding its first half; epochs: the targets are "
-                        "held from one epoch start (chain passes 1, 2, 4, 8, ...) to the next, and the ladders "
+                        "held from one epoch start (after 0, 1, 2, 4, 8, ... chain passes) to the next, and the ladders "
                         "keep their states between (measured, not the default: docs/guiding.md, 'Spatial "
                         "targets held for an epoch')")
 

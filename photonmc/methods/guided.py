@@ -706,8 +706,8 @@ class SpatialTarget(GuidedPhotons):
         # pass (the default): the upper levels' targets follow each pass's MPs and statistics,
         # and the ladders start again every pass, discarding its first half (LADDER_BURN_IN).
         # epochs (an option, measured): they are world-space functions of the photon's
-        # depositing vertices, held fixed from one epoch start (chain passes 0, 1, 2, 4, 8, ...)
-        # to the next, so that the upper levels keep their states (the warm start, whatever
+        # depositing vertices, held fixed from one epoch start (after 0, 1, 2, 4, 8, ... chain
+        # passes) to the next, so that the upper levels keep their states (the warm start, whatever
         # --warm-start says) and a ladder discards half a pass within an epoch only where an
         # upper level lost its state. docs/guiding.md, "Spatial targets held for an epoch".
         if opts["spatial_updates"] not in ("pass", "epochs"):
