@@ -74,6 +74,9 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
                            {"res": "64"}),
           # Made after stop 55's measurements.
           "louvre-bay": ("../tools/heldout/louvre-bay.xml", "../../tools/heldout/louvre-bay-64.exr", {"res": "64"}),
+          # Made after stop 59's measurements.
+          "skirting-slot": ("../tools/heldout/skirting-slot.xml", "../../tools/heldout/skirting-slot-64.exr",
+                            {"res": "64"}),
           # Made after stop 56's measurements.
           "pantry-vent": ("../tools/heldout/pantry-vent.xml", "../../tools/heldout/pantry-vent-64.exr", {"res": "64"}),
           # Rooms of mbe's suite (tools/mbe_suite.sh), for A/B runs of vcm's and mbe's options.
