@@ -32,7 +32,8 @@ FORMAT = "photonmc-render-state"
 # 2: sppm's direct term Ld is summed over camera paths, no longer over passes' means (sppm.py)
 # 3: mbe's chain film weighs each pass by its camera subpaths per pixel (film.py, weighted films)
 # 4: the spatial target's clusters keep their points' mean area (clusters.py)
-FORMAT_VERSION = 4
+# 5: ... only where they are frozen (`--spatial-updates epochs`): three statistics otherwise
+FORMAT_VERSION = 5
 SCALARS = (bool, int, float, str, type(None))
 SKIPPED = ("dscene", "settings", "options")       # given by the job, not computed
 SPARSE_MIN_BYTES = 1 << 20

@@ -55,20 +55,21 @@ class HitDensityClusters:
         # slot is written by one thread in a fixed order (determinism). A level with at most
         # `hashed` cells indexes them directly (no collisions); a finer one hashes its cells
         # into `hashed` slots.
-        # Memory: 68 bytes a slot (76 with the frozen copy); 3.4 M slots (230 MB) for the
-        # 256x256 default render. (52 bytes before the mean area; a single shared table of 4 M
-        # slots in NumPy took 100 MB: docs/performance.md.)
+        # Memory: 52 bytes a slot (76 with the frozen copy and the mean area it needs); 3.4 M
+        # slots (177 MB) for the 256x256 default render. (A single shared table of 4 M slots
+        # in NumPy took 100 MB: docs/performance.md.)
         hashed = 1 << int(np.clip(np.ceil(np.log2(max(n_points * levels, 1024))), 10, 20))
         sizes = [min(8 ** level, hashed) for level in range(levels)]
         offsets = np.concatenate(([0], np.cumsum(sizes)[:-1]))
         n = int(sum(sizes))
         f = FieldGroup("clusters")
         # Per slot: the sum over passes of (hits / area) in the cell (kappa), the passes in
-        # which it held MPs, the distinct chain states that hit its MPs, and the sum over
-        # passes of its MPs' mean area.
-        self.stats = f.vector(4, ti.f64, n)
-        self.pass_sums = f.vector(4, ti.f64, n)     # this pass's hits, area, samples, points per slot
+        # which it held MPs, the distinct chain states that hit its MPs, and (frozen only: only
+        # the frozen copy reads it) the sum over passes of its MPs' mean area.
         self.has_frozen = bool(frozen)
+        width = 4 if self.has_frozen else 3
+        self.stats = f.vector(width, ti.f64, n)
+        self.pass_sums = f.vector(width, ti.f64, n)  # this pass's hits, area, samples (, points) per slot
         if self.has_frozen:
             self.frozen = f.vector(2, ti.f32, n)    # freeze(): density (or UNKNOWN), mean MP area
         self.touched = f.scalar(ti.i32, n)          # per level, the slots this pass filled, in order
@@ -182,12 +183,15 @@ class HitDensityClusters:
                     if sums[1] == 0.0:     # first point in this slot this pass (areas are > 0)
                         self.touched[offset + self.n_touched[level]] = s
                         self.n_touched[level] += 1
-                    self.pass_sums[s] = sums + ti.Vector([hits, area, samples, 1.0], ti.f64)
+                    if ti.static(self.has_frozen):
+                        self.pass_sums[s] = sums + ti.Vector([hits, area, samples, 1.0], ti.f64)
+                    else:
+                        self.pass_sums[s] = sums + ti.Vector([hits, area, samples], ti.f64)
 
     @ti.func
     def close_pass(self):
-        """Per slot filled this pass: kappa += its hits / its area, one more pass, its samples,
-        its points' mean area; its pass sums emptied. Two cells that share a slot add up there
+        """Per slot filled this pass: kappa += its hits / its area, one more pass, its samples
+        (and, frozen, its points' mean area); its pass sums emptied. Two cells that share a slot add up there
         (a collision changes the importance, never the estimate)."""
         ti.loop_config(block_dim=1)
         for level in range(self.levels):
@@ -195,8 +199,11 @@ class HitDensityClusters:
             for i in range(self.n_touched[level]):
                 s = self.touched[offset + i]
                 sums = self.pass_sums[s]
-                self.stats[s] += ti.Vector([sums[0] / sums[1], 1.0, sums[2], sums[1] / sums[3]], ti.f64)
-                self.pass_sums[s] = ti.Vector([0.0, 0.0, 0.0, 0.0], ti.f64)
+                if ti.static(self.has_frozen):
+                    self.stats[s] += ti.Vector([sums[0] / sums[1], 1.0, sums[2], sums[1] / sums[3]], ti.f64)
+                else:
+                    self.stats[s] += ti.Vector([sums[0] / sums[1], 1.0, sums[2]], ti.f64)
+                self.pass_sums[s] = ti.zero(sums)
             self.n_touched[level] = 0
 
     # -- the same, for arrays (tests and tools) ------------------------------------------------

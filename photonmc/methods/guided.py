@@ -84,6 +84,18 @@ MIN_MUTATION = 0.05
 VERTEX_BUDGET = 1 << 21
 
 
+@ti.func
+def _inverse_area_and_importance(area_ratio, density_ratio, has_density):
+    """The spatial target's two terms (docs/guiding.md, "The spatial importance"): the inverse
+    area 1/(A/A_max + EPS_AREA), and the importance, that over (rho/rho_max + EPS_DENSITY)
+    where any density is known (else the inverse area alone)."""
+    ia = 1.0 / (area_ratio + EPS_AREA)
+    imp = ia
+    if has_density:
+        imp = ia / (density_ratio + EPS_DENSITY)
+    return ia, imp
+
+
 @data_oriented
 class GuidedPhotons(Sppm):
     """Shared by `visibility` (one level) and `spatial-tf` (three)."""
@@ -768,21 +780,15 @@ class SpatialTarget(GuidedPhotons):
 
     @ti.func
     def _world_value(self, fz):
-        """The inverse-area target and the spatial importance of _area_and_importance, from a
-        point's frozen (density, mean MP area) and the epoch's maxima; 1 where none is known."""
+        """_area_and_importance from a point's frozen (density, mean MP area) and the epoch's
+        maxima; 1 where no MP has statistics yet."""
         norm = self.epoch_norm[None]
         ia, imp = ti.f64(1.0), ti.f64(1.0)
         if norm[0] > 0.0:
-            area = norm[0]         # unknown: the largest area, the lowest target
+            area, rho = norm[0], norm[1]   # unknown: the largest area and density (lowest target)
             if fz[0] != UNKNOWN:
-                area = ti.cast(fz[1], ti.f64)
-            ia = 1.0 / (area / norm[0] + EPS_AREA)
-            imp = ia
-        if norm[1] > 0.0:
-            rho = norm[1]          # unknown: the highest density, the lowest importance
-            if fz[0] != UNKNOWN:
-                rho = ti.cast(fz[0], ti.f64)
-            imp = ia / (rho / norm[1] + EPS_DENSITY)
+                area, rho = ti.cast(fz[1], ti.f64), ti.cast(fz[0], ti.f64)
+            ia, imp = _inverse_area_and_importance(area / norm[0], rho / ti.max(norm[1], 1e-300), norm[1] > 0.0)
         return ia, imp
 
     @ti.func
@@ -842,15 +848,12 @@ class SpatialTarget(GuidedPhotons):
     def _area_and_importance(self, j):
         r = ti.cast(self.mp_radius[j], ti.f64)
         sums = self.target_sums[None]
-        ia = 1.0 / (math.pi * r * r / sums[0] + EPS_AREA)
-        imp = ia
         rho_max = sums[1]
-        if rho_max != UNKNOWN:
-            rho = self.rho[j]
-            if rho == UNKNOWN:
-                rho = rho_max      # no statistics yet: lowest importance
-            imp = ia / (rho / ti.max(rho_max, 1e-300) + EPS_DENSITY)
-        return ia, imp
+        rho = self.rho[j]
+        if rho == UNKNOWN:
+            rho = rho_max          # no statistics yet: lowest importance
+        return _inverse_area_and_importance(math.pi * r * r / sums[0], rho / ti.max(rho_max, 1e-300),
+                                            rho_max != UNKNOWN)
 
     @ti.kernel
     def _hit_statistics(self, n: ti.i32):
