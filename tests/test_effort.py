@@ -67,6 +67,27 @@ def _simulated_render(strategy, bias, budget=3e7, v_c=0.02, v_p_r2=0.05, camera_
     return (bias_sum / passes) ** 2 + (photon_var + camera_var) / passes ** 2, n
 
 
+def test_camera_share_predicts_the_balanced_noise_of_better_photons():
+    """tools/effective_photons.py's prediction: at the best split of a budget between camera
+    paths (work c_c, variance V_c each) and photons (c_p, V_p), the noise is (a_c + a_p)^2 / W,
+    a = sqrt(V c); photons worth g times as many (V_p / g) leave s_c + (1 - s_c) / sqrt(g) of
+    it in RMSE, s_c = a_c / (a_c + a_p). Checked against the error minimised over the photons
+    per camera path by brute force."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from effective_photons import camera_share
+
+    rng = np.random.default_rng(3)
+    photons = np.geomspace(1e-7, 1e7, 300001)     # n* = sqrt(c_c V_p / (c_p V_c)) lies in 1e-6 .. 1e6
+    for _ in range(20):
+        v_c, v_p, c_c, c_p, g = 10.0 ** rng.uniform(-3, 3, 5)
+        share = camera_share((v_c, v_p), c_c, c_p)
+        least = [np.min((c_c + photons * c_p) * (v_c + v / photons)) for v in (v_p, v_p / g)]
+        assert math.sqrt(least[1] / least[0]) == pytest.approx(share + (1 - share) / math.sqrt(g), rel=1e-4)
+    assert math.isnan(camera_share(None, 1.0, 1.0))
+
+
 def test_balance_weighs_the_radius_bias_on_a_known_model():
     """Where the radius bias is a large part of the error, the photons per pass follow it:
     the balance told the bias ends with less error than the balance without it (0.82x in this
