@@ -191,8 +191,8 @@ class HitDensityClusters:
     @ti.func
     def close_pass(self):
         """Per slot filled this pass: kappa += its hits / its area, one more pass, its samples
-        (and, frozen, its points' mean area); its pass sums emptied. Two cells that share a slot add up there
-        (a collision changes the importance, never the estimate)."""
+        (and, frozen, its points' mean area); its pass sums emptied. Two cells that share a
+        slot add up there (a collision changes the importance, never the estimate)."""
         ti.loop_config(block_dim=1)
         for level in range(self.levels):
             offset = self.level_table[level][0]
