@@ -1,6 +1,8 @@
 """The effort balance (photonmc/methods/effort.py): its optimum on a known model, and its
 variance estimates on real renders."""
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -73,10 +75,8 @@ def test_camera_share_predicts_the_balanced_noise_of_better_photons():
     a = sqrt(V c); photons worth g times as many (V_p / g) leave s_c + (1 - s_c) / sqrt(g) of
     it in RMSE, s_c = a_c / (a_c + a_p). Checked against the error minimised over the photons
     per camera path by brute force."""
-    import sys
-    from pathlib import Path
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-    from effective_photons import camera_share
+    from effective_photons import camera_share       # a tool, not part of the package
 
     rng = np.random.default_rng(3)
     photons = np.geomspace(1e-7, 1e7, 300001)     # n* = sqrt(c_c V_p / (c_p V_c)) lies in 1e-6 .. 1e6

@@ -389,6 +389,19 @@ class GuidedPhotons(Sppm):
         self.hit_weight[vkey] = hw
 
     @ti.func
+    def _raise_upper_targets(self, t, inverse_area, importance):
+        """A path's upper targets after it reaches one more point: the largest inverse area of
+        the points it reaches, and the largest (--path-target sum: the summed) importance."""
+        if ti.static(self.n_levels == 3):
+            t[1] = ti.max(t[1], inverse_area)
+        top = ti.static(self.n_levels - 1)        # the spatial level
+        if ti.static(self.path_target_sum):
+            t[top] += importance
+        else:
+            t[top] = ti.max(t[top], importance)
+        return t
+
+    @ti.func
     def visit(self, vkey: ti.i32, x, n, wi, beta, segments: ti.i32) -> ti.i32:
         """Photon-vertex visitor: evaluates the targets or deposits, per the trace mode."""
         if ti.static(self.keep_vertices):
@@ -418,13 +431,7 @@ class GuidedPhotons(Sppm):
                     if ti.static(self.n_levels == 1 or self.epochs):
                         break       # epochs: the upper levels read the vertex, below
                     if ti.static(self.n_levels > 1 and not self.epochs):
-                        if ti.static(self.n_levels == 3):
-                            t[1] = ti.max(t[1], self.inv_area[j])
-                        top = ti.static(self.n_levels - 1)        # the spatial level
-                        if ti.static(self.path_target_sum):
-                            t[top] += self.importance[j]
-                        else:
-                            t[top] = ti.max(t[top], self.importance[j])
+                        t = self._raise_upper_targets(t, self.inv_area[j], self.importance[j])
                 elif self.deposit_at(j, wi, beta, fw, vkey & 1, self.in_inner_disc(j, x)):
                     hit = 1
                     if ti.static(self.guided_pss):
@@ -441,13 +448,7 @@ class GuidedPhotons(Sppm):
             t[0] = 1.0
             if ti.static(self.epochs):
                 w = self.world_targets(x)
-                if ti.static(self.n_levels == 3):
-                    t[1] = ti.max(t[1], w[0])
-                top = ti.static(self.n_levels - 1)
-                if ti.static(self.path_target_sum):
-                    t[top] += w[1]
-                else:
-                    t[top] = ti.max(t[top], w[1])
+                t = self._raise_upper_targets(t, w[0], w[1])
             self.target_scratch[vkey] = t
             if ti.static(self.n_levels == 1):
                 hit = 2       # V(u) is known: the rest of the path does not matter...
