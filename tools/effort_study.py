@@ -77,6 +77,9 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           # Made after stop 59's measurements.
           "skirting-slot": ("../tools/heldout/skirting-slot.xml", "../../tools/heldout/skirting-slot-64.exr",
                             {"res": "64"}),
+          # Made after stop 61's measurements.
+          "ceiling-gap-wall": ("../tools/heldout/ceiling-gap-wall.xml", "../../tools/heldout/ceiling-gap-wall-64.exr",
+                               {"res": "64"}),
           # Made after stop 60's measurements.
           "two-gap": ("../tools/heldout/two-gap.xml", "../../tools/heldout/two-gap-64.exr", {"res": "64"}),
           # Made after stop 56's measurements.
