@@ -1,6 +1,6 @@
-"""The share of a gather disc that lies on its measurement point's surface (`--disc clipped`,
-an option of the photon methods; measured, not the default: docs/guiding.md, "Discs that
-overhang an edge").
+"""The part of a gather disc that lies on its measurement point's surface (`--disc clipped` and
+`--disc linear`, options of the photon methods; measured, not the default: docs/guiding.md,
+"Discs that overhang an edge" and "Discs fitted to their surface").
 
 A photon counts at a measurement point (MP) when it lies within the radius R and on a surface
 facing alike (kernels/photon.py, NORMAL_COS_MIN), and the MP's estimate divides the photons'
@@ -13,7 +13,8 @@ Here the part on the surface is measured with rays, once per MP and pass, in DIR
 directions of the tangent plane:
   - a wall in the way: a ray just above the surface along the direction, up to R, stops at it;
   - the surface ending (a convex edge, a gap): a short ray down onto the surface at the end of
-    the free stretch finds nothing, and a bisection (BISECTIONS halvings) finds where it ends.
+    the free stretch finds nothing, and halvings then a bisection find where it ends, to
+    REL_PRECISION of its own length.
 Each direction's free length rho_k stands for its sector, so the share is
 sum_k rho_k^2 / (DIRECTIONS R^2), and the estimate divides by pi R^2 x share. The share of the
 disc of half the area (the balanced radius rule's probe, methods/sppm.py) comes from the same
@@ -24,6 +25,12 @@ where the density changes steeply across a thin face (a slit's inner face, lit f
 the estimate reads the brighter side. It is consistent all the same: as R -> 0 every interior
 point's share tends to 1, and the edges' points are a vanishing part of the image. A share is
 not let below SHARE_MIN, so that a probe fooled by a small gap cannot blow an estimate up.
+
+`--disc linear` (disc_linear_fits) turns the same probes into a region: straight edges drawn
+through the probed ends, the disc cut by them. Its photons are weighted so that a density
+linear across the region is read at the point (_linear_fit), and the gather counts only the
+photons inside it (in_region), so light that leaks across a thin wall onto the same plane does
+not count either.
 """
 import math
 
@@ -32,8 +39,13 @@ import taichi as ti
 from .sampling import onb
 
 DIRECTIONS = 8
-BISECTIONS = 4
+HALVINGS = 10            # where the surface ends: searched down to R / 2^HALVINGS from p
+REL_PRECISION = 1.0 / 16.0
+QUADRATURE = 64          # --disc linear: thin sectors integrating the covered region's moments
 SHARE_MIN = 0.25
+FIT_MIN = 0.25           # --disc linear: the least weighted area a fit may leave (_linear_fit)
+REGION_MIN = 0.02        # and the least share of the disc it divides by (its gather counts only the
+                         # region's photons, so a small region is not a bias, only noisy)
 LIFT = 0.05              # the probes run this fraction of R above the surface (at least 4 ray eps)
 DROP = 0.25              # and look this fraction of R below it for the surface
 
@@ -45,31 +57,241 @@ def _surface_below(sc: ti.template(), p, n, t, x, lift, R) -> ti.i32:
 
 
 @ti.func
-def disc_shares(sc: ti.template(), p, n, R):
-    """(share of the disc of radius R at p, normal n, on its surface; the same for the disc of
-    half the area)."""
+def _extent(sc: ti.template(), p, n, t, R):
+    """How far the surface reaches from p along the tangent direction t, up to R: to a wall, or
+    to where the surface ends, found to within REL_PRECISION of its own length (the fit's
+    lines are drawn through these ends, and a relative error keeps them true near p too)."""
     lift = ti.max(LIFT * R, 4.0 * sc.ray_eps)
-    t1, t2 = onb(n)
-    full = 0.0
-    inner = 0.0
-    for k in range(DIRECTIONS):
-        angle = (k + 0.5) * (2.0 * math.pi / DIRECTIONS)
-        t = ti.cos(angle) * t1 + ti.sin(angle) * t2
-        rho = R
-        wall = sc.trace(p + n * lift, t, R, False)
-        if wall.kind >= 0:
-            rho = 0.98 * wall.t          # the probe down must not start inside the wall
-        if not _surface_below(sc, p, n, t, rho, lift, R):
-            lo, hi = 0.0, rho
-            for _ in range(BISECTIONS):
+    rho = R
+    wall = sc.trace(p + n * lift, t, R, False)
+    if wall.kind >= 0:
+        rho = 0.98 * wall.t          # the probe down must not start inside the wall
+    if not _surface_below(sc, p, n, t, rho, lift, R):
+        hi = rho                      # the surface ends before hi ...
+        lo = 0.0
+        for _ in range(HALVINGS):     # ... and by halving, after lo
+            if _surface_below(sc, p, n, t, 0.5 * hi, lift, R):
+                lo = 0.5 * hi
+                break
+            hi *= 0.5
+        if lo > 0.0:                  # else the surface ends within R / 2^HALVINGS of p
+            while hi - lo > REL_PRECISION * hi:
                 mid = 0.5 * (lo + hi)
                 if _surface_below(sc, p, n, t, mid, lift, R):
                     lo = mid
                 else:
                     hi = mid
-            rho = 0.5 * (lo + hi)
+        rho = 0.5 * (lo + hi)
+    return rho
+
+
+@ti.func
+def _direction(k, t1, t2):
+    """The angle of sector k's centre and its unit direction in the tangent plane."""
+    angle = (k + 0.5) * (2.0 * math.pi / DIRECTIONS)
+    return angle, ti.cos(angle) * t1 + ti.sin(angle) * t2
+
+
+@ti.func
+def disc_shares(sc: ti.template(), p, n, R):
+    """(share of the disc of radius R at p, normal n, on its surface; the same for the disc of
+    half the area)."""
+    t1, t2 = onb(n)
+    full = 0.0
+    inner = 0.0
+    for k in range(DIRECTIONS):        # not unrolled: the probes are the kernel's largest code
+        _, t = _direction(k, t1, t2)
+        rho = _extent(sc, p, n, t, R)
         full += rho * rho
         r_inner = ti.min(rho, R * ti.static(1.0 / math.sqrt(2.0)))
         inner += r_inner * r_inner
     return (ti.max(full / (DIRECTIONS * R * R), SHARE_MIN),
             ti.max(inner / (DIRECTIONS * R * R * 0.5), SHARE_MIN))
+
+
+@ti.func
+def _sector_moments(r, angle, delta):
+    """A sector of radius r (units of R) about `angle`, `delta` wide: its r^2 (the share's
+    sum), and its first (u, v) and second (uu, vv, uv) moments about the disc's centre."""
+    r2 = r * r
+    first = r2 * r / 3.0 * 2.0 * ti.sin(0.5 * delta)
+    second = r2 * r2 / 4.0
+    s2 = 0.5 * ti.sin(delta)
+    return ti.Vector([r2, first * ti.cos(angle), first * ti.sin(angle),
+                      second * (0.5 * delta + ti.cos(2.0 * angle) * s2),
+                      second * (0.5 * delta - ti.cos(2.0 * angle) * s2),
+                      second * ti.sin(2.0 * angle) * s2])
+
+
+# --disc linear's region: each direction's end, quantised to LEVELS steps of R and packed four
+# to a u32, so that the gather (in_region) tests a photon against the very region whose
+# moments the fit used.
+LEVELS = 255
+WHOLE_DISC = 0xFFFFFFFF   # four ends at the rim
+
+
+@ti.func
+def pack_ends(rhos):
+    """The ends rho_k / R (a vector of DIRECTIONS in [0, 1]) as two u32, 8 bits each."""
+    packed = ti.Vector([ti.u32(0), ti.u32(0)])
+    for k in ti.static(range(DIRECTIONS)):
+        level = ti.cast(ti.round(ti.min(ti.max(rhos[k], 0.0), 1.0) * LEVELS), ti.u32)
+        packed[k // 4] |= level << ti.u32(8 * (k % 4))
+    return packed
+
+
+@ti.func
+def _unpack(packed, k):
+    """End k in units of R (1: the surface reaches the rim)."""
+    word = packed[0]
+    if k >= 4:
+        word = packed[1]
+    return ti.cast((word >> ti.u32(8 * (k % 4))) & ti.u32(0xFF), ti.f32) / LEVELS
+
+
+@ti.func
+def _end(packed, k):
+    """End k as a point of the tangent plane (units of R, the frame of onb(n))."""
+    index = (k + DIRECTIONS) % DIRECTIONS
+    angle = (index + 0.5) * (2.0 * math.pi / DIRECTIONS)
+    return _unpack(packed, index) * ti.Vector([ti.cos(angle), ti.sin(angle)])
+
+
+@ti.func
+def _edge(packed, k, towards):
+    """(outward normal, distance from p) of the edge through end k, which bounds the wedge on
+    the `towards` side of it (+1 or -1): drawn through the next cut end away from that wedge,
+    else through the one beyond it, else square to direction k."""
+    end = _end(packed, k)
+    e = end / ti.max(end.norm(), 1e-12)
+    found = 0
+    for side in ti.static((-1, 1)):
+        other = k + side * towards
+        far = _end(packed, other)
+        if not found and _unpack(packed, (other + DIRECTIONS) % DIRECTIONS) < 1.0:
+            along = end - far
+            length = along.norm()
+            if length > 1e-4:
+                normal = ti.Vector([along.y, -along.x]) / length
+                if normal.dot(end) < 0.0:
+                    normal = -normal              # outward: p is on the surface's side
+                if normal.dot(end) > 1e-5:        # not through p (a degenerate pair)
+                    e = normal
+                    found = 1
+    return e, e.dot(end)
+
+
+@ti.func
+def _wedge_edges(packed, k):
+    """The edges that bound the wedge from direction k to k + 1: (normal, distance) of end k's
+    and of end k + 1's, a distance of 2 (beyond the rim) for an end at the rim."""
+    e0, d0 = ti.Vector([1.0, 0.0]), 2.0
+    e1, d1 = ti.Vector([1.0, 0.0]), 2.0
+    if _unpack(packed, k) < 1.0:
+        e0, d0 = _edge(packed, k, 1)
+    if _unpack(packed, (k + 1) % DIRECTIONS) < 1.0:
+        e1, d1 = _edge(packed, k + 1, -1)
+    return e0, d0, e1, d1
+
+
+@ti.func
+def _reach(e0, d0, e1, d1, u):
+    """How far from p the region reaches along the unit direction u (units of R), u in a wedge
+    bounded by the edges (e0, d0) and (e1, d1): the disc cut by both."""
+    reach = 1.0
+    c0 = e0.dot(u)
+    if c0 > 1e-6:
+        reach = ti.min(reach, d0 / c0)
+    c1 = e1.dot(u)
+    if c1 > 1e-6:
+        reach = ti.min(reach, d1 / c1)
+    return reach
+
+
+@ti.func
+def in_region(packed, offset_u, offset_v) -> ti.i32:
+    """Whether a photon at tangent-plane offset (u, v) from p (units of R, within the disc) lies
+    in the region the probes found."""
+    inside = 1
+    dist = ti.sqrt(offset_u * offset_u + offset_v * offset_v)
+    if dist > 1e-6:
+        step = 2.0 * math.pi / DIRECTIONS
+        angle = ti.atan2(offset_v, offset_u)
+        k = ti.cast(ti.floor(angle / step - 0.5), ti.i32)
+        k = (k % DIRECTIONS + DIRECTIONS) % DIRECTIONS
+        e0, d0, e1, d1 = _wedge_edges(packed, k)
+        inside = dist <= _reach(e0, d0, e1, d1, ti.Vector([offset_u, offset_v]) / dist)
+    return inside
+
+
+@ti.func
+def _linear_fit(m, cap, t1, t2, R):
+    """(share, slope) of the local-linear weight 1 + slope . (x - p) over the covered region
+    whose summed _sector_moments are m, in the disc of radius cap (units of R). The weight
+    moves the region's weighted centroid back to p, so that a density linear across it is
+    read at p (the boundary correction of local-linear density estimation); share is the
+    weighted area over the disc's, pi (cap R)^2. A fit that would leave under FIT_MIN of the
+    covered area is scaled down to leave FIT_MIN: the variance it adds is about 1 / that."""
+    share = m[0] / (QUADRATURE * cap * cap)
+    slope = ti.Vector([0.0, 0.0, 0.0])
+    m1u, m1v, muu, mvv, muv = m[1], m[2], m[3], m[4], m[5]
+    det = muu * mvv - muv * muv
+    if share < REGION_MIN:
+        share = REGION_MIN          # a sliver: bounded noise for a little bias
+    elif det > 1e-12:
+        au = -(mvv * m1u - muv * m1v) / det
+        av = -(muu * m1v - muv * m1u) / det
+        q = -(au * m1u + av * m1v) / (share * math.pi * cap * cap)   # in [0, 1]: the area given up
+        lam = 1.0
+        if q > 1.0 - FIT_MIN:
+            lam = (1.0 - FIT_MIN) / q
+        share *= 1.0 - lam * q
+        slope = lam * (au * t1 + av * t2) / R
+    return share, slope
+
+
+@ti.func
+def disc_linear_fits(sc: ti.template(), p, n, R):
+    """`--disc linear`: (share, slope) for the disc of radius R and for the disc of half the
+    area (_linear_fit), and the region's packed ends (in_region). A photon at x in the region
+    counts 1 + slope . (x - p), and the estimate divides by pi R^2 x share.
+
+    The region's moments need its shape between the probed directions, which eight sectors
+    render too coarsely for a fit (errors of 10-30 % near an edge; docs/guiding.md, "Discs fitted
+    to their surface"). So each probed end where the surface stops is taken to lie on a straight
+    edge, drawn through the next cut end beside it, and the region between two directions is the
+    disc cut by the edges of its two ends (_reach): exact for a straight edge, a strip and a
+    convex corner, integrated over QUADRATURE thin sectors. The gather counts the photons in that
+    region only, so a photon across a wall (a leak) or a gap does not count."""
+    t1, t2 = onb(n)
+    rhos = ti.Vector([1.0] * DIRECTIONS)
+    for k in range(DIRECTIONS):        # not unrolled: the probes are the kernel's largest code
+        _, t = _direction(k, t1, t2)
+        rhos[k] = _extent(sc, p, n, t, R) / R
+    packed = pack_ends(rhos)
+    share, slope = 1.0, ti.Vector([0.0, 0.0, 0.0])
+    share_inner, slope_inner = 1.0, ti.Vector([0.0, 0.0, 0.0])
+    if packed[0] != ti.u32(WHOLE_DISC) or packed[1] != ti.u32(WHOLE_DISC):
+        share, slope, share_inner, slope_inner = _region_fits(packed, t1, t2, R)
+    return share, slope, share_inner, slope_inner, packed
+
+
+@ti.func
+def _region_fits(packed, t1, t2, R):
+    """disc_linear_fits for a region cut by an edge: its moments integrated, then fitted."""
+    cap = ti.static(1.0 / math.sqrt(2.0))
+    fine = ti.static(QUADRATURE // DIRECTIONS)
+    step = 2.0 * math.pi / DIRECTIONS
+    delta = step / fine
+    full = ti.Vector([0.0] * 6)
+    inner = ti.Vector([0.0] * 6)
+    for k in range(DIRECTIONS):        # the wedge from direction k to k + 1
+        e0, d0, e1, d1 = _wedge_edges(packed, k)
+        for f in range(fine):
+            angle = (k + 0.5) * step + (f + 0.5) * delta
+            r = _reach(e0, d0, e1, d1, ti.Vector([ti.cos(angle), ti.sin(angle)]))
+            full += _sector_moments(r, angle, delta)
+            inner += _sector_moments(ti.min(r, cap), angle, delta)
+    share, slope = _linear_fit(full, 1.0, t1, t2, R)
+    share_inner, slope_inner = _linear_fit(inner, cap, t1, t2, R)
+    return share, slope, share_inner, slope_inner

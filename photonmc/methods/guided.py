@@ -432,7 +432,7 @@ class GuidedPhotons(Sppm):
                         break       # epochs: the upper levels read the vertex, below
                     if ti.static(self.n_levels > 1 and not self.epochs):
                         t = self._raise_upper_targets(t, self.inv_area[j], self.importance[j])
-                elif self.deposit_at(j, wi, beta, fw, vkey & 1, self.in_inner_disc(j, x)):
+                elif self.deposit_at(j, x, wi, beta, fw, vkey & 1):
                     hit = 1
                     if ti.static(self.guided_pss):
                         if fw[ti.static(self.n_levels)] > 0.0:

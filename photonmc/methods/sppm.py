@@ -37,7 +37,7 @@ from ..kernels import pixel_samples, rng
 from ..kernels.camera_walk import STOP, THROUGHPUT_ROULETTE, camera_walk
 from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.direct import next_event
-from ..kernels.disc_clip import disc_shares
+from ..kernels.disc_clip import WHOLE_DISC, disc_linear_fits, disc_shares, in_region
 from ..kernels.batch import fill_fields
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import HashGrid
@@ -48,7 +48,8 @@ from .effort import EffortBalance
 from .merge_radius import ALPHA_FAST, BIAS_MIN_PASSES, BIAS_Z, bias_outweighs_noise
 from ..taichi_frontend import data_oriented
 
-PROBE_ALL_EVERY = 8      # --disc clipped: passes between probes of every pixel's MPs
+PROBE_ALL_EVERY = 8      # --disc clipped, linear: passes between probes of every pixel's MPs
+EDGE_MEMORY = 8          # and the passes a pixel's MPs are probed after one was last found cut
 FIXED_ONE = 4294967296.0          # 2^32: fixed-point scale of per-iteration flux
 PI = math.pi                      # use as ti.f64(PI): a bare literal is a float32 constant (default_fp)
 MP_BUDGET = 1 << 20               # measurement points that --camera-paths auto may allocate
@@ -91,7 +92,7 @@ class Sppm(Method):
                # overhang an edge (docs/guiding.md, "Discs that overhang an edge").
                "disc": "full"}
     RADIUS_RULES = ("progressive", "balanced")
-    DISCS = ("full", "clipped")
+    DISCS = ("full", "clipped", "linear")
     default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
     # The twins' V_c estimates: their plain mean since the start (sppm: the caustic's rare
     # camera paths to the lamp through glass are error its photons cannot remove, and the
@@ -101,7 +102,7 @@ class Sppm(Method):
     # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the
     # pass's measurement points with their per-pass accumulators (up to MP_BUDGET points).
     TRANSIENT = ("grid", "mp_p", "mp_n", "mp_wo", "mp_W", "mp_bsdf", "mp_depth", "mp_valid", "mp_radius",
-                 "mp_share", "mp_share_inner",
+                 "mp_share", "mp_share_inner", "mp_slope", "mp_slope_inner", "mp_ends",
                  "mp_direct", "mp_twin_direct", "mp_twin_matched", "M", "phi", "phi_odd", "phi_inner",
                  "camera_estimate", "twin_unmatched")
     n_levels = 1          # flux accumulators per measurement point (one per Markov-chain level)
@@ -146,7 +147,10 @@ class Sppm(Method):
         self.balanced_radius = opts["radius_rule"] == "balanced"
         if opts["disc"] not in self.DISCS:
             raise SettingsError(f"--disc must be one of {', '.join(self.DISCS)}, got '{opts['disc']}'")
-        self.clipped_disc = opts["disc"] == "clipped"
+        self.clipped_disc = opts["disc"] in ("clipped", "linear")
+        # linear: clipped, each photon weighted so that a density linear across the disc is
+        # read at its centre (kernels/disc_clip.py, _linear_fit)
+        self.linear_disc = opts["disc"] == "linear"
         if opts["balance"] not in ("mse", "relmse"):
             raise SettingsError(f"--balance must be 'mse' or 'relmse', got '{opts['balance']}'")
         # relmse: the effort balance weighs each pixel's error by 1 / (m^2 + eps), as converge's
@@ -196,6 +200,10 @@ class Sppm(Method):
         if self.clipped_disc:
             self.mp_share = f.scalar(ti.f32, n)          # the part of the disc on the MP's surface
             self.mp_share_inner = f.scalar(ti.f32, n)    # and of the disc of half the area
+        if self.linear_disc:
+            self.mp_slope = f.vector(3, ti.f32, n)       # a photon at x counts 1 + slope . (x - p)
+            self.mp_slope_inner = f.vector(3, ti.f32, n)     # in the disc of half the area
+            self.mp_ends = f.vector(2, ti.u32, n)        # the region a photon must lie in (disc_clip.in_region)
         self.mp_direct = f.vector(3, ti.f64, n)        # the camera path's emission and direct light
         self.mp_twin_direct = f.vector(3, ti.f64, n)   # its twin's (at the same pixel position)
         self.mp_twin_matched = f.scalar(ti.i32, n)     # 1 where the twin reached the same MP
@@ -203,8 +211,8 @@ class Sppm(Method):
         n = self.n_pixels
         self.R = f.scalar(ti.f64, n)
         if self.clipped_disc:
-            # 1 for a pixel one of whose MPs found its disc cut by an edge: its MPs are probed
-            # every pass, the others' every PROBE_ALL_EVERY passes (_clip_discs).
+            # per pixel, the passes left in which its MPs are probed (EDGE_MEMORY after one was
+            # found cut by an edge; the others' every PROBE_ALL_EVERY passes, _clip_discs)
             self.edge_pixel = f.scalar(ti.i32, n)
             self.edge_seen = f.scalar(ti.i32, n)
         self.N = f.scalar(ti.f64, n)
@@ -450,21 +458,39 @@ class Sppm(Method):
         (kernels/disc_clip.py) in the pixels where an edge was found before, and in every
         pixel every PROBE_ALL_EVERY passes; elsewhere the full disc (share 1, the plain
         estimator: an edge not yet found costs its bias until the next pass that probes all).
-        The probes cost 16-48 rays per MP, several times its camera path."""
+        The probes cost 16-48 rays per MP, several times its camera path, so a pixel whose MPs
+        were found clear for EDGE_MEMORY passes (its radius has shrunk off the edge) is probed
+        with the others again."""
         n = self.n_pixels
         for j in range(in_use):
             self.mp_share[j] = 1.0
             self.mp_share_inner[j] = 1.0
             i = j % n
+            if ti.static(self.linear_disc):
+                self.mp_slope[j] = ti.Vector([0.0, 0.0, 0.0])
+                self.mp_slope_inner[j] = ti.Vector([0.0, 0.0, 0.0])
+                self.mp_ends[j] = ti.Vector([ti.u32(WHOLE_DISC), ti.u32(WHOLE_DISC)])
             if self.mp_valid[j] and (probe_all or self.edge_pixel[i]):
-                full, inner = disc_shares(self.dscene, self.mp_p[j], self.mp_n[j], self.mp_radius[j])
-                self.mp_share[j] = full
-                self.mp_share_inner[j] = inner
-                if full < 0.999:
+                if ti.static(self.linear_disc):
+                    full, slope, inner, slope_inner, ends = disc_linear_fits(self.dscene, self.mp_p[j],
+                                                                             self.mp_n[j], self.mp_radius[j])
+                    self.mp_share[j] = full
+                    self.mp_share_inner[j] = inner
+                    self.mp_slope[j] = slope
+                    self.mp_slope_inner[j] = slope_inner
+                    self.mp_ends[j] = ends
+                else:
+                    full, inner = disc_shares(self.dscene, self.mp_p[j], self.mp_n[j], self.mp_radius[j])
+                    self.mp_share[j] = full
+                    self.mp_share_inner[j] = inner
+                if self.mp_share[j] < 0.999:
                     self.edge_seen[i] = 1
         for i in range(n):          # after every decision of this pass: deterministic
             if self.edge_seen[i]:
-                self.edge_pixel[i] = 1
+                self.edge_pixel[i] = EDGE_MEMORY
+            elif in_use > 0 and self.edge_pixel[i] > 0:
+                self.edge_pixel[i] -= 1
+            self.edge_seen[i] = 0
 
     # -- the camera walk's visitor (kernels/camera_walk.py) ----------------------------
     roulette = THROUGHPUT_ROULETTE
@@ -520,10 +546,16 @@ class Sppm(Method):
         ok = 0
         if self.mp_valid[j] and self.mp_depth[j] + segments <= ti.static(self.max_depth):
             r = self.mp_radius[j]
-            if (x - self.mp_p[j]).norm_sqr() <= r * r:
+            offset = x - self.mp_p[j]
+            if offset.norm_sqr() <= r * r:
                 nj = self.mp_n[j]
                 if wi.dot(nj) > 0.0 and n.dot(nj) >= NORMAL_COS_MIN:
                     ok = 1
+                    if ti.static(self.linear_disc):
+                        ends = self.mp_ends[j]
+                        if ends[0] != ti.u32(WHOLE_DISC) or ends[1] != ti.u32(WHOLE_DISC):
+                            t1, t2 = onb(nj)
+                            ok = in_region(ends, offset.dot(t1) / r, offset.dot(t2) / r)
         return ok
 
     @ti.func
@@ -534,7 +566,7 @@ class Sppm(Method):
         for e in range(first, end):
             j = self.grid.entries[e]
             if self.accepts(j, x, n, wi, segments):
-                used |= self.deposit_at(j, wi, beta, ti.Vector([1.0]), vkey & 1, self.in_inner_disc(j, x))
+                used |= self.deposit_at(j, x, wi, beta, ti.Vector([1.0]), vkey & 1)
         return used
 
     @ti.func
@@ -548,28 +580,37 @@ class Sppm(Method):
         return inner
 
     @ti.func
-    def deposit_at(self, j, wi, beta, weights, odd: ti.i32, inner: ti.i32) -> ti.i32:
-        """Add photon power beta arriving from wi to MP j, weight[l] of it to level l's
-        accumulator, and count the photon. `odd`: the photon belongs to the odd half of the
-        pass (effort.py); `inner`: it lies in the disc of half the area (in_inner_disc).
-        Returns 0 for a non-finite contribution (dropped)."""
+    def deposit_at(self, j, x, wi, beta, weights, odd: ti.i32) -> ti.i32:
+        """Add the power beta of a photon at x arriving from wi to MP j, weight[l] of it to
+        level l's accumulator, and count the photon. `odd`: the photon belongs to the odd half
+        of the pass (effort.py). Returns 0 for a non-finite contribution (dropped)."""
         nj = self.mp_n[j]
         t1, t2 = onb(nj)
         f = self.dscene.bsdf_evaluate(self.mp_bsdf[j], to_local(self.mp_wo[j], t1, t2, nj), to_local(wi, t1, t2, nj)).f
         contrib = ti.cast(beta / self.power_scale * f, ti.f64)
+        # the photon's weight in the disc and in the disc of half the area (0 outside it)
+        disc_weight = ti.f64(1.0)
+        inner_weight = ti.cast(self.in_inner_disc(j, x), ti.f64)
+        if ti.static(self.linear_disc):
+            offset = x - self.mp_p[j]
+            disc_weight = 1.0 + ti.cast(self.mp_slope[j].dot(offset), ti.f64)
+            inner_weight *= 1.0 + ti.cast(self.mp_slope_inner[j].dot(offset), ti.f64)
         ok = 0
         if (contrib == contrib).all() and contrib.max() * weights.max() < 1e9:
             ti.atomic_add(self.M[j], 1)
             for level in ti.static(range(self.n_acc)):
                 if weights[level] > 0.0:
-                    fixed = ti.cast(contrib * ti.cast(weights[level], ti.f64) * FIXED_ONE + 0.5, ti.i64)
+                    flux = contrib * ti.cast(weights[level], ti.f64) * FIXED_ONE
+                    fixed = ti.cast(ti.floor(flux * disc_weight + 0.5), ti.i64)     # negative too (linear)
                     for c in ti.static(range(3)):
                         ti.atomic_add(self.phi[level, j][c], fixed[c])
                         if odd:
                             ti.atomic_add(self.phi_odd[level, j][c], fixed[c])
-                        if ti.static(self.balanced_radius):
-                            if inner:
-                                ti.atomic_add(self.phi_inner[level, j][c], fixed[c])
+                    if ti.static(self.balanced_radius):
+                        if inner_weight != 0.0:
+                            fixed_inner = ti.cast(ti.floor(flux * inner_weight + 0.5), ti.i64)
+                            for c in ti.static(range(3)):
+                                ti.atomic_add(self.phi_inner[level, j][c], fixed_inner[c])
             ok = 1
         return ok
 
