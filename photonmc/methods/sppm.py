@@ -89,7 +89,9 @@ class Sppm(Method):
                "effort_bias": False,
                # clipped: each MP's estimate divides by the part of its disc that lies on its
                # surface (kernels/disc_clip.py), which removes the dark bias of discs that
-               # overhang an edge (docs/guiding.md, "Discs that overhang an edge").
+               # overhang an edge (docs/guiding.md, "Discs that overhang an edge"); linear: the
+               # region the probes bound, its photons alone, weighted so that light linear
+               # across it is read at the MP (docs/guiding.md, "Discs fitted to their surface").
                "disc": "full"}
     RADIUS_RULES = ("progressive", "balanced")
     DISCS = ("full", "clipped", "linear")
@@ -488,7 +490,7 @@ class Sppm(Method):
         for i in range(n):          # after every decision of this pass: deterministic
             if self.edge_seen[i]:
                 self.edge_pixel[i] = EDGE_MEMORY
-            elif in_use > 0 and self.edge_pixel[i] > 0:
+            elif self.edge_pixel[i] > 0:
                 self.edge_pixel[i] -= 1
             self.edge_seen[i] = 0
 
