@@ -127,6 +127,8 @@ def _sector_moments(r, angle, delta):
 # to a u32, so that the gather (in_region) tests a photon against the very region whose
 # moments the fit used.
 LEVELS = 255
+_COS = [math.cos((k + 0.5) * 2.0 * math.pi / DIRECTIONS) for k in range(DIRECTIONS)]
+_SIN = [math.sin((k + 0.5) * 2.0 * math.pi / DIRECTIONS) for k in range(DIRECTIONS)]
 WHOLE_DISC = 0xFFFFFFFF   # four ends at the rim
 
 
@@ -153,8 +155,8 @@ def _unpack(packed, k):
 def _end(packed, k):
     """End k as a point of the tangent plane (units of R, the frame of onb(n))."""
     index = (k + DIRECTIONS) % DIRECTIONS
-    angle = (index + 0.5) * (2.0 * math.pi / DIRECTIONS)
-    return _unpack(packed, index) * ti.Vector([ti.cos(angle), ti.sin(angle)])
+    cos_k, sin_k = ti.Vector(_COS), ti.Vector(_SIN)     # constants: the gather reads six ends a photon
+    return _unpack(packed, index) * ti.Vector([cos_k[index], sin_k[index]])
 
 
 @ti.func
