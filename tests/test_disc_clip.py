@@ -9,7 +9,8 @@ import taichi as ti
 from photonmc import load_scene
 from photonmc.imageio import read_image
 from photonmc.kernels.device_scene import DeviceScene
-from photonmc.kernels.disc_clip import DIRECTIONS, REL_PRECISION, SHARE_MIN, disc_linear_fits, disc_shares
+from photonmc.kernels.disc_clip import DIRECTIONS, REL_PRECISION, SHARE_MIN, disc_linear_fits, disc_shares, in_region
+from photonmc.kernels.sampling import onb
 from photonmc.loop import Budget, prepare, run
 from photonmc.metrics import downsample, luminance
 
@@ -52,7 +53,7 @@ def probed(tmp_path_factory):
     dscene = DeviceScene(load_scene(path))
     n = len(POINTS)
     points = np.array([c[0] for c in POINTS], np.float32)
-    out = ti.ndarray(ti.f32, (n, 7))
+    out = ti.ndarray(ti.f32, (n, 10))
 
     @ti.kernel
     def probe(points: ti.types.ndarray(), out: ti.types.ndarray()):
@@ -60,8 +61,13 @@ def probed(tmp_path_factory):
             p = ti.Vector([points[i, 0], points[i, 1], points[i, 2]])
             up = ti.Vector([0.0, 1.0, 0.0])
             out[i, 0], out[i, 1] = disc_shares(dscene, p, up, R)
-            share, slope, share_inner, _slope_inner, _ends = disc_linear_fits(dscene, p, up, R)
+            share, slope, share_inner, _slope_inner, ends = disc_linear_fits(dscene, p, up, R)
             out[i, 2], out[i, 6] = share, share_inner
+            # whether the gather counts a photon at 0.5 R along +x, -x and +z (the wall is at +x)
+            t1, t2 = onb(up)
+            for c, offset in ti.static(enumerate(((0.5, 0.0, 0.0), (-0.5, 0.0, 0.0), (0.0, 0.0, 0.5)))):
+                o = ti.Vector(offset)
+                out[i, 7 + c] = in_region(ends, o.dot(t1), o.dot(t2))
             for c in ti.static(range(3)):
                 out[i, 3 + c] = slope[c]
 
@@ -80,6 +86,14 @@ def test_the_share_of_a_disc_cut_by_an_edge_a_wall_and_a_corner(probed):
     # The half-area disc (radius R / sqrt 2 = 0.141) clears the edge at 0.1 less than the full one
     assert probed[1, 1] > probed[1, 0]
     assert abs(probed[1, 1] - segment_share(0.1 / (R / math.sqrt(2)))) < tolerance
+
+
+def test_the_gather_of_a_fitted_disc_stops_at_a_wall(probed):
+    """The floor runs on behind the wall (x > 0.5): a photon there, on the same plane and facing
+    the same way, is light that leaked through the wall, and the region's gather drops it."""
+    clear, wall = probed[0], probed[4]          # clear of every edge; the wall at R / 5 along +x
+    assert list(clear[7:10]) == [1, 1, 1]
+    assert list(wall[7:10]) == [0, 1, 1]
 
 
 def test_a_linear_fit_reads_a_density_linear_across_a_cut_disc_at_its_centre(probed):
