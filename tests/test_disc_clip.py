@@ -47,21 +47,23 @@ POINTS = [  # on the floor: (point, its disc's analytic share)
 @pytest.fixture(scope="module")
 def probed(tmp_path_factory):
     """For each of POINTS: the clipped shares (full, inner) and the linear fits (share, slope,
-    share of the inner disc), from one kernel."""
+    share of the inner disc), from one kernel; then the same shares probed again knowing the
+    floor's triangle under the point, with the probes' shortcuts (_over_own_triangle,
+    _walls_near)."""
     path = tmp_path_factory.mktemp("disc") / "scene.xml"
     path.write_text(f'<scene version="3.0.0">{FLOOR_AND_WALL}</scene>')
     dscene = DeviceScene(load_scene(path))
     n = len(POINTS)
     points = np.array([c[0] for c in POINTS], np.float32)
-    out = ti.ndarray(ti.f32, (n, 10))
+    out = ti.ndarray(ti.f32, (n, 14))
 
     @ti.kernel
     def probe(points: ti.types.ndarray(), out: ti.types.ndarray()):
         for i in range(n):
             p = ti.Vector([points[i, 0], points[i, 1], points[i, 2]])
             up = ti.Vector([0.0, 1.0, 0.0])
-            out[i, 0], out[i, 1] = disc_shares(dscene, p, up, R)
-            share, slope, share_inner, _slope_inner, ends = disc_linear_fits(dscene, p, up, R)
+            out[i, 0], out[i, 1] = disc_shares(dscene, p, up, R, -1, False)
+            share, slope, share_inner, _slope_inner, ends = disc_linear_fits(dscene, p, up, R, -1, False)
             out[i, 2], out[i, 6] = share, share_inner
             # whether the gather counts a photon at 0.5 R along +x, -x and +z (the wall is at +x)
             t1, t2 = onb(up)
@@ -70,6 +72,9 @@ def probed(tmp_path_factory):
                 out[i, 7 + c] = in_region(ends, o.dot(t1), o.dot(t2))
             for c in ti.static(range(3)):
                 out[i, 3 + c] = slope[c]
+            tri = dscene.trace(p + 0.01 * up, -up, 0.02, False).prim
+            out[i, 10], out[i, 11] = disc_shares(dscene, p, up, R, tri, True)
+            out[i, 12], _slope2, out[i, 13], _slope_inner2, _ends2 = disc_linear_fits(dscene, p, up, R, tri, True)
 
     probe(points, out)
     return out.to_numpy()
@@ -86,6 +91,14 @@ def test_the_share_of_a_disc_cut_by_an_edge_a_wall_and_a_corner(probed):
     # The half-area disc (radius R / sqrt 2 = 0.141) clears the edge at 0.1 less than the full one
     assert probed[1, 1] > probed[1, 0]
     assert abs(probed[1, 1] - segment_share(0.1 / (R / math.sqrt(2)))) < tolerance
+
+
+def test_the_probes_shortcuts_read_the_shares_the_rays_read(probed):
+    """A probe point over the MP's own flat triangle is answered without a ray, and the wall
+    probes are not traced where nothing near reaches their height; the shares, clipped and
+    linear, are those of the rays alone (the points include a wall and open edges)."""
+    assert np.allclose(probed[:, 10:12], probed[:, 0:2], rtol=1e-6, atol=1e-6)
+    assert np.allclose(probed[:, [12, 13]], probed[:, [2, 6]], rtol=1e-6, atol=1e-6)
 
 
 def test_the_gather_of_a_fitted_disc_stops_at_a_wall(probed):

@@ -20,7 +20,8 @@ from .sampling import INV_PI, cosine_hemisphere, onb, to_world, uniform_sphere, 
 from ..taichi_frontend import data_oriented
 
 Hit = ti.types.struct(t=ti.f32, kind=ti.i32, prim=ti.i32, b1=ti.f32, b2=ti.f32)
-Surface = ti.types.struct(p=vec3, ng=vec3, ns=vec3, material=ti.i32, emitter=ti.i32, light_pdf_a=ti.f32)
+Surface = ti.types.struct(p=vec3, ng=vec3, ns=vec3, material=ti.i32, emitter=ti.i32, light_pdf_a=ti.f32,
+                          tri=ti.i32)     # tri: the triangle hit (-1 for a sphere)
 LightSample = ti.types.struct(p=vec3, n=vec3, radiance=vec3, pdf_a=ti.f32)
 # Emitters for both directions (pdfs include the choice of the light; docs/vcm.md):
 # an emitted ray for a light subpath, a point chosen toward a shading point (next-event
@@ -336,7 +337,7 @@ class DeviceScene:
         """Position, normals, material and emitter at a hit. The geometric normal is turned
         to the shading normal's side; sidedness (front/back) follows the shading normal."""
         s = Surface(p=vec3(0.0), ng=vec3(0.0, 0.0, 1.0), ns=vec3(0.0, 0.0, 1.0), material=0, emitter=-1,
-                    light_pdf_a=0.0)
+                    light_pdf_a=0.0, tri=-1)
         if hit.kind == TRIANGLE:
             i = hit.prim
             e1 = self.tri_e1[i]
@@ -351,6 +352,7 @@ class DeviceScene:
             s.material = self.tri_material[i]
             s.emitter = self.tri_emitter[i]
             s.light_pdf_a = self.tri_light_pdf[i]
+            s.tri = i
         elif ti.static(self.has_spheres):
             if hit.kind == SPHERE:
                 i = hit.prim

@@ -36,6 +36,7 @@ import math
 
 import taichi as ti
 
+from .device_scene import STACK_SIZE
 from .sampling import onb
 
 DIRECTIONS = 8
@@ -48,41 +49,146 @@ REGION_MIN = 0.02        # and the least share of the disc it divides by (its ga
                          # region's photons, so a small region is not a bias, only noisy)
 LIFT = 0.05              # the probes run this fraction of R above the surface (at least 4 ray eps)
 DROP = 0.25              # and look this fraction of R below it for the surface
+OWN_FACE_COS = 0.9999    # a probe point over the MP's own flat triangle needs no ray (_over_own_triangle),
+OWN_FACE_MARGIN = 1e-4   # away from its edges by this much barycentric margin
 
 
 @ti.func
-def _surface_below(sc: ti.template(), p, n, t, x, lift, R) -> ti.i32:
-    hit = sc.trace(p + t * x + n * lift, -n, lift + DROP * R, True)
-    return hit.kind >= 0
+def _over_own_triangle(sc: ti.template(), tri, n, q, R) -> ti.i32:
+    """Whether q lies over the MP's own triangle `tri` (-1: none known), away from its edges and
+    within DROP R of its plane: the probe ray down from q would hit it, so it is not traced.
+    Large flat faces (walls, floors) answer most of a probe's questions this way."""
+    over = 0
+    if ti.static(sc.has_triangles):
+        if tri >= 0:
+            v0, e1, e2 = sc.tri_v0[tri], sc.tri_e1[tri], sc.tri_e2[tri]
+            ng = e1.cross(e2)
+            area2 = ng.norm()
+            if area2 > 0.0:
+                ng /= area2
+                d = q - v0
+                # only where the MP's normal is the face's (a flat face, not a smoothed mesh)
+                if ti.abs(ng.dot(n)) >= OWN_FACE_COS and ti.abs(d.dot(ng)) <= DROP * R:
+                    d00, d01, d11 = e1.dot(e1), e1.dot(e2), e2.dot(e2)
+                    d20, d21 = d.dot(e1), d.dot(e2)
+                    det = d00 * d11 - d01 * d01
+                    b1 = (d11 * d20 - d01 * d21) / det
+                    b2 = (d00 * d21 - d01 * d20) / det
+                    over = b1 >= OWN_FACE_MARGIN and b2 >= OWN_FACE_MARGIN and b1 + b2 <= 1.0 - OWN_FACE_MARGIN
+    return over
 
 
 @ti.func
-def _extent(sc: ti.template(), p, n, t, R):
-    """How far the surface reaches from p along the tangent direction t, up to R: to a wall, or
-    to where the surface ends, found to within REL_PRECISION of its own length (the fit's
-    lines are drawn through these ends, and a relative error keeps them true near p too)."""
-    lift = ti.max(LIFT * R, 4.0 * sc.ray_eps)
+def _surface_below(sc: ti.template(), p, n, t, x, lift, R, tri) -> ti.i32:
+    """Whether the surface goes on under p + x t: a short ray down onto it, unless the point
+    lies over the MP's own triangle."""
+    below = _over_own_triangle(sc, tri, n, p + t * x, R)
+    if not below:
+        hit = sc.trace(p + t * x + n * lift, -n, lift + DROP * R, True)
+        below = hit.kind >= 0
+    return below
+
+
+@ti.func
+def _box_near(sc: ti.template(), node, c, radius) -> ti.i32:
+    gap = ti.max(ti.max(sc.node_min[node] - c, c - sc.node_max[node]), 0.0)
+    return gap.norm_sqr() <= radius * radius
+
+
+@ti.func
+def _walls_near(sc: ti.template(), p, n, lift, R) -> ti.i32:
+    """Whether anything within R of the probes' height above p reaches that height: only such
+    a thing (a wall, an object on the surface) can stop a wall probe, which runs at height
+    `lift` along the tangent plane. Where nothing does, the DIRECTIONS wall probes would all
+    miss, and are not traced (in a room most of the surface is such). Conservative: a triangle
+    whose box is near and whose corners straddle the height counts; so does any sphere near."""
+    c = p + n * lift
+    near = 0
+    if ti.static(sc.has_spheres):
+        for i in range(sc.n_spheres):
+            if (sc.sph_center[i] - c).norm() <= sc.sph_radius[i] + R:
+                near = 1
+    if ti.static(sc.has_triangles):
+        stack = ti.Vector([0] * STACK_SIZE, ti.i32)
+        sp = 0
+        node = 0
+        if near or not _box_near(sc, 0, c, R):
+            node = -1
+        while node >= 0:
+            count = sc.node_count[node]
+            if count > 0:
+                first = sc.node_right_or_first[node]
+                for j in range(first, first + count):
+                    v0 = sc.tri_v0[j]
+                    v1, v2 = v0 + sc.tri_e1[j], v0 + sc.tri_e2[j]
+                    h = ti.Vector([(v0 - p).dot(n), (v1 - p).dot(n), (v2 - p).dot(n)])
+                    margin = 0.01 * lift
+                    if h.min() <= lift + margin and h.max() >= lift - margin:
+                        gap = ti.max(ti.max(ti.min(ti.min(v0, v1), v2) - c, c - ti.max(ti.max(v0, v1), v2)), 0.0)
+                        if gap.norm_sqr() <= R * R:
+                            near = 1
+                node = -1
+            else:
+                left, right = node + 1, sc.node_right_or_first[node]
+                node = -1
+                if _box_near(sc, left, c, R):
+                    node = left
+                if _box_near(sc, right, c, R):
+                    if node < 0:
+                        node = right
+                    else:
+                        stack[sp] = right
+                        sp += 1
+            if near:
+                node = -1
+                sp = 0
+            elif node < 0 and sp > 0:
+                sp -= 1
+                node = stack[sp]
+    return near
+
+
+@ti.func
+def _extent(sc: ti.template(), p, n, t, R, lift, tri, walls):
+    """How far the surface reaches from p along the tangent direction t, up to R: to a wall
+    (probed only where `walls`, _walls_near), or to where the surface ends, found to within
+    REL_PRECISION of its own length (the fit's lines are drawn through these ends, and a
+    relative error keeps them true near p too)."""
     rho = R
-    wall = sc.trace(p + n * lift, t, R, False)
-    if wall.kind >= 0:
-        rho = 0.98 * wall.t          # the probe down must not start inside the wall
-    if not _surface_below(sc, p, n, t, rho, lift, R):
+    if walls:
+        wall = sc.trace(p + n * lift, t, R, False)
+        if wall.kind >= 0:
+            rho = 0.98 * wall.t          # the probe down must not start inside the wall
+    if not _surface_below(sc, p, n, t, rho, lift, R, tri):
         hi = rho                      # the surface ends before hi ...
         lo = 0.0
         for _ in range(HALVINGS):     # ... and by halving, after lo
-            if _surface_below(sc, p, n, t, 0.5 * hi, lift, R):
+            if _surface_below(sc, p, n, t, 0.5 * hi, lift, R, tri):
                 lo = 0.5 * hi
                 break
             hi *= 0.5
         if lo > 0.0:                  # else the surface ends within R / 2^HALVINGS of p
             while hi - lo > REL_PRECISION * hi:
                 mid = 0.5 * (lo + hi)
-                if _surface_below(sc, p, n, t, mid, lift, R):
+                if _surface_below(sc, p, n, t, mid, lift, R, tri):
                     lo = mid
                 else:
                     hi = mid
         rho = 0.5 * (lo + hi)
     return rho
+
+
+@ti.func
+def _probe_setup(sc: ti.template(), p, n, R, tri, shortcuts: ti.template()):
+    """(lift, the MP's triangle, whether walls may be near) for _extent. Without `shortcuts`
+    (tests: the reference) every probe is a ray."""
+    lift = ti.max(LIFT * R, 4.0 * sc.ray_eps)
+    walls = 1
+    own = -1
+    if ti.static(shortcuts):
+        walls = _walls_near(sc, p, n, lift, R)
+        own = tri
+    return lift, own, walls
 
 
 @ti.func
@@ -93,15 +199,17 @@ def _direction(k, t1, t2):
 
 
 @ti.func
-def disc_shares(sc: ti.template(), p, n, R):
+def disc_shares(sc: ti.template(), p, n, R, tri, shortcuts: ti.template()):
     """(share of the disc of radius R at p, normal n, on its surface; the same for the disc of
-    half the area)."""
+    half the area). `tri`: the MP's triangle (-1: none); `shortcuts`: spare the rays that
+    the scene's geometry answers (_over_own_triangle, _walls_near)."""
     t1, t2 = onb(n)
+    lift, own, walls = _probe_setup(sc, p, n, R, tri, shortcuts)
     full = 0.0
     inner = 0.0
     for k in range(DIRECTIONS):        # not unrolled: the probes are the kernel's largest code
         _, t = _direction(k, t1, t2)
-        rho = _extent(sc, p, n, t, R)
+        rho = _extent(sc, p, n, t, R, lift, own, walls)
         full += rho * rho
         r_inner = ti.min(rho, R * ti.static(1.0 / math.sqrt(2.0)))
         inner += r_inner * r_inner
@@ -110,17 +218,20 @@ def disc_shares(sc: ti.template(), p, n, R):
 
 
 @ti.func
-def _sector_moments(r, angle, delta):
-    """A sector of radius r (units of R) about `angle`, `delta` wide: its r^2 (the share's
-    sum), and its first (u, v) and second (uu, vv, uv) moments about the disc's centre."""
+def _sector_moments(r, c, s):
+    """A thin sector of the region (QUADRATURE of them make the disc), of radius r (units of R)
+    about the direction (c, s) = (cos, sin) of its angle: its r^2 (the share's sum), and its
+    first (u, v) and second (uu, vv, uv) moments about the disc's centre."""
+    delta = ti.static(2.0 * math.pi / QUADRATURE)
     r2 = r * r
-    first = r2 * r / 3.0 * 2.0 * ti.sin(0.5 * delta)
-    second = r2 * r2 / 4.0
-    s2 = 0.5 * ti.sin(delta)
-    return ti.Vector([r2, first * ti.cos(angle), first * ti.sin(angle),
-                      second * (0.5 * delta + ti.cos(2.0 * angle) * s2),
-                      second * (0.5 * delta - ti.cos(2.0 * angle) * s2),
-                      second * ti.sin(2.0 * angle) * s2])
+    first = r2 * r * ti.static(2.0 / 3.0 * math.sin(0.5 * delta))
+    second = r2 * r2 * 0.25
+    s2 = ti.static(0.5 * math.sin(delta))
+    cos2, sin2 = c * c - s * s, 2.0 * c * s
+    return ti.Vector([r2, first * c, first * s,
+                      second * (0.5 * delta + cos2 * s2),
+                      second * (0.5 * delta - cos2 * s2),
+                      second * sin2 * s2])
 
 
 # --disc linear's region: each direction's end, quantised to LEVELS steps of R and packed four
@@ -253,7 +364,7 @@ def _linear_fit(m, cap, t1, t2, R):
 
 
 @ti.func
-def disc_linear_fits(sc: ti.template(), p, n, R):
+def disc_linear_fits(sc: ti.template(), p, n, R, tri, shortcuts: ti.template()):
     """`--disc linear`: (share, slope) for the disc of radius R and for the disc of half the
     area (_linear_fit), and the region's packed ends (in_region). A photon at x in the region
     counts 1 + slope . (x - p), and the estimate divides by pi R^2 x share.
@@ -266,10 +377,11 @@ def disc_linear_fits(sc: ti.template(), p, n, R):
     convex corner, integrated over QUADRATURE thin sectors. The gather counts the photons in that
     region only, so a photon across a wall (a leak) or a gap does not count."""
     t1, t2 = onb(n)
+    lift, own, walls = _probe_setup(sc, p, n, R, tri, shortcuts)
     rhos = ti.Vector([1.0] * DIRECTIONS)
     for k in range(DIRECTIONS):        # not unrolled: the probes are the kernel's largest code
         _, t = _direction(k, t1, t2)
-        rhos[k] = _extent(sc, p, n, t, R) / R
+        rhos[k] = _extent(sc, p, n, t, R, lift, own, walls) / R
     packed = pack_ends(rhos)
     share, slope = 1.0, ti.Vector([0.0, 0.0, 0.0])
     share_inner, slope_inner = 1.0, ti.Vector([0.0, 0.0, 0.0])
@@ -283,17 +395,18 @@ def _region_fits(packed, t1, t2, R):
     """disc_linear_fits for a region cut by an edge: its moments integrated, then fitted."""
     cap = ti.static(1.0 / math.sqrt(2.0))
     fine = ti.static(QUADRATURE // DIRECTIONS)
-    step = 2.0 * math.pi / DIRECTIONS
-    delta = step / fine
     full = ti.Vector([0.0] * 6)
     inner = ti.Vector([0.0] * 6)
+    cos_k, sin_k = ti.Vector(_COS), ti.Vector(_SIN)
     for k in range(DIRECTIONS):        # the wedge from direction k to k + 1
         e0, d0, e1, d1 = _wedge_edges(packed, k)
-        for f in range(fine):
-            angle = (k + 0.5) * step + (f + 0.5) * delta
-            r = _reach(e0, d0, e1, d1, ti.Vector([ti.cos(angle), ti.sin(angle)]))
-            full += _sector_moments(r, angle, delta)
-            inner += _sector_moments(ti.min(r, cap), angle, delta)
+        for f in ti.static(range(fine)):   # its thin sectors, turned from direction k by phi: no trig
+            phi = ti.static((f + 0.5) * 2.0 * math.pi / QUADRATURE)
+            c = cos_k[k] * ti.static(math.cos(phi)) - sin_k[k] * ti.static(math.sin(phi))
+            s = sin_k[k] * ti.static(math.cos(phi)) + cos_k[k] * ti.static(math.sin(phi))
+            r = _reach(e0, d0, e1, d1, ti.Vector([c, s]))
+            full += _sector_moments(r, c, s)
+            inner += _sector_moments(ti.min(r, cap), c, s)
     share, slope = _linear_fit(full, 1.0, t1, t2, R)
     share_inner, slope_inner = _linear_fit(inner, cap, t1, t2, R)
     return share, slope, share_inner, slope_inner

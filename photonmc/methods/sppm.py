@@ -104,7 +104,7 @@ class Sppm(Method):
     # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the
     # pass's measurement points with their per-pass accumulators (up to MP_BUDGET points).
     TRANSIENT = ("grid", "mp_p", "mp_n", "mp_wo", "mp_W", "mp_bsdf", "mp_depth", "mp_valid", "mp_radius",
-                 "mp_share", "mp_share_inner", "mp_slope", "mp_slope_inner", "mp_ends",
+                 "mp_share", "mp_share_inner", "mp_tri", "mp_slope", "mp_slope_inner", "mp_ends",
                  "mp_direct", "mp_twin_direct", "mp_twin_matched", "M", "phi", "phi_odd", "phi_inner",
                  "camera_estimate", "twin_unmatched")
     n_levels = 1          # flux accumulators per measurement point (one per Markov-chain level)
@@ -202,6 +202,7 @@ class Sppm(Method):
         if self.clipped_disc:
             self.mp_share = f.scalar(ti.f32, n)          # the part of the disc on the MP's surface
             self.mp_share_inner = f.scalar(ti.f32, n)    # and of the disc of half the area
+            self.mp_tri = f.scalar(ti.i32, n)            # the MP's triangle (-1: a sphere), which spares probe rays
         if self.linear_disc:
             self.mp_slope = f.vector(3, ti.f32, n)       # a photon at x counts 1 + slope . (x - p)
             self.mp_slope_inner = f.vector(3, ti.f32, n)     # in the disc of half the area
@@ -475,14 +476,16 @@ class Sppm(Method):
             if self.mp_valid[j] and (probe_all or self.edge_pixel[i]):
                 if ti.static(self.linear_disc):
                     full, slope, inner, slope_inner, ends = disc_linear_fits(self.dscene, self.mp_p[j],
-                                                                             self.mp_n[j], self.mp_radius[j])
+                                                                             self.mp_n[j], self.mp_radius[j],
+                                                                             self.mp_tri[j], True)
                     self.mp_share[j] = full
                     self.mp_share_inner[j] = inner
                     self.mp_slope[j] = slope
                     self.mp_slope_inner[j] = slope_inner
                     self.mp_ends[j] = ends
                 else:
-                    full, inner = disc_shares(self.dscene, self.mp_p[j], self.mp_n[j], self.mp_radius[j])
+                    full, inner = disc_shares(self.dscene, self.mp_p[j], self.mp_n[j], self.mp_radius[j],
+                                              self.mp_tri[j], True)
                     self.mp_share[j] = full
                     self.mp_share_inner[j] = inner
                 if self.mp_share[j] < 0.999:
@@ -518,6 +521,8 @@ class Sppm(Method):
         else:
             self.mp_p[i] = s.p
             self.mp_n[i] = n
+            if ti.static(self.clipped_disc):
+                self.mp_tri[i] = s.tri
             self.mp_wo[i] = wo
             self.mp_W[i] = w.beta
             self.mp_bsdf[i] = b
