@@ -461,9 +461,11 @@ class Sppm(Method):
         (kernels/disc_clip.py) in the pixels where an edge was found before, and in every
         pixel every PROBE_ALL_EVERY passes; elsewhere the full disc (share 1, the plain
         estimator: an edge not yet found costs its bias until the next pass that probes all).
-        The probes cost 16-48 rays per MP, several times its camera path, so a pixel whose MPs
-        were found clear for EDGE_MEMORY passes (its radius has shrunk off the edge) is probed
-        with the others again."""
+        The probes cost up to 16-48 rays per MP, several times its camera path (fewer where the
+        MP's own flat triangle and a clear neighbourhood answer them: disc_clip._probe_setup),
+        so a pixel whose MPs were found clear for EDGE_MEMORY passes (its radius has shrunk off
+        the edge) is probed with the others again. (Probing clear pixels ever more rarely was
+        measured and dropped: docs/guiding.md, "What the probes cost".)"""
         n = self.n_pixels
         for j in range(in_use):
             self.mp_share[j] = 1.0
