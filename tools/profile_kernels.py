@@ -2,14 +2,17 @@
 
     python tools/profile_kernels.py [--methods pt,sppm,visibility,spatial-tf,vcm,mbe]
                                     [--scene cornell-box] [-D res=128] [--seconds 10]
+                                    [--options '{"disc": "linear"}'] [--warm-up 300]
 
-For each method: one warm-up iteration (compilation), then iterations for `--seconds` with
+For each method: one warm-up iteration (compilation), or `--warm-up` iterations to time a
+render's steady state (the radii shrunk), then iterations for `--seconds` with
 Taichi's kernel profiler on. Prints, per method, each kernel's share of the wall time (its
 offloaded tasks summed; Taichi names them <kernel>_c<id>_<n>_kernel_<task>_<kind>), and
 what is left outside kernels (host work: numpy, field copies, Python). Kernel times are
 device times of the launches, so on the CPU they include the threads' load imbalance.
 """
 import argparse
+import json
 import re
 import sys
 import time
@@ -38,15 +41,18 @@ def kernel_times() -> dict:
     return dict(out)
 
 
-def profile(method: str, scene: str, params: dict, seconds: float, seed: int):
+def profile(method: str, scene: str, params: dict, seconds: float, seed: int, options=None, warm_up: int = 0):
     path = REPO / "scenes" / scene / "scene.xml" if not scene.endswith(".xml") else Path(scene)
-    p = Job(scene=str(path), params=dict(params), method=method, options={}, seed=seed).prepare()
+    p = Job(scene=str(path), params=dict(params), method=method, options=dict(options or {}), seed=seed).prepare()
     try:
         m = p.method
         t0 = time.perf_counter()
         m.iterate()
         compile_s = time.perf_counter() - t0
         m.reset()
+        for _ in range(warm_up):
+            m.iterate()
+        first = m.iterations
         ti.sync()
         ti.profiler.clear_kernel_profiler_info()
         t0 = time.perf_counter()
@@ -55,7 +61,7 @@ def profile(method: str, scene: str, params: dict, seconds: float, seed: int):
         ti.sync()
         wall = time.perf_counter() - t0
         times = kernel_times()
-        iterations = m.iterations
+        iterations = m.iterations - first
     finally:
         p.release()
     total = sum(times.values())
@@ -77,13 +83,16 @@ def main():
     ap.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE")
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--options", default="{}", help="the methods' options, as JSON")
+    ap.add_argument("--warm-up", type=int, default=0, help="iterations before the timed ones")
     args = ap.parse_args()
     params = dict(d.split("=", 1) for d in args.defines)
     runtime.init("cpu", kernel_profiler=True)
-    print(f"scene {args.scene} {params}, {args.seconds} s per method after a warm-up iteration, "
+    print(f"scene {args.scene} {params}, options {args.options}, {args.seconds} s per method after "
+          f"{max(args.warm_up, 1)} warm-up iteration(s), "
           f"Taichi kernel profiler on")
     for method in args.methods.split(","):
-        profile(method, args.scene, params, args.seconds, args.seed)
+        profile(method, args.scene, params, args.seconds, args.seed, json.loads(args.options), args.warm_up)
 
 
 if __name__ == "__main__":
