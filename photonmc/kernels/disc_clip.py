@@ -39,7 +39,7 @@ import math
 
 import taichi as ti
 
-from .device_scene import STACK_SIZE
+from .device_scene import MISS, STACK_SIZE, Hit
 from .sampling import onb
 
 DIRECTIONS = 8
@@ -54,6 +54,7 @@ LIFT = 0.05              # the probes run this fraction of R above the surface (
 DROP = 0.25              # and look this fraction of R below it for the surface
 OWN_FACE_COS = 0.9999    # a probe point over the MP's own flat triangle needs no ray (_over_own_triangle),
 OWN_FACE_MARGIN = 1e-4   # away from its edges by this much barycentric margin
+NEAR_MAX = 16            # probe rays test at most this many triangles found near, else go through the BVH
 
 
 @ti.func
@@ -82,13 +83,30 @@ def _over_own_triangle(sc: ti.template(), tri, n, q, R) -> ti.i32:
 
 
 @ti.func
-def _surface_below(sc: ti.template(), p, n, t, x, lift, R, tri) -> ti.i32:
+def _probe_ray(sc: ti.template(), near, count, o, d, tmax, any_hit: ti.template()):
+    """A probe ray: tested against the `count` triangles in `near` (every triangle it could
+    meet, _near_triangles) and the spheres, or traced through the BVH where count < 0 (too
+    many near). Both find the same hits: the triangle test is the tracer's own."""
+    hit = Hit(t=tmax, kind=MISS, prim=-1, b1=0.0, b2=0.0)
+    if count >= 0:
+        if ti.static(sc.has_triangles):
+            for k in range(count):
+                sc._triangle(near[k], o, d, hit)
+        if ti.static(sc.has_spheres):
+            for i in range(sc.n_spheres):
+                sc._sphere(i, o, d, hit)
+    else:
+        hit = sc.trace(o, d, tmax, any_hit)
+    return hit
+
+
+@ti.func
+def _surface_below(sc: ti.template(), p, n, t, x, lift, R, tri, near, count) -> ti.i32:
     """Whether the surface goes on under p + x t: a short ray down onto it, unless the point
     lies over the MP's own triangle."""
     below = _over_own_triangle(sc, tri, n, p + t * x, R)
     if not below:
-        hit = sc.trace(p + t * x + n * lift, -n, lift + DROP * R, True)
-        below = hit.kind >= 0
+        below = _probe_ray(sc, near, count, p + t * x + n * lift, -n, lift + DROP * R, True).kind >= 0
     return below
 
 
@@ -99,81 +117,93 @@ def _box_near(sc: ti.template(), node, c, radius) -> ti.i32:
 
 
 @ti.func
-def _walls_near(sc: ti.template(), p, n, lift, R) -> ti.i32:
-    """Whether anything within R of the probes' height above p reaches that height: only such
-    a thing (a wall, an object on the surface) can stop a wall probe, which runs at height
-    `lift` along the tangent plane. Where nothing does, the DIRECTIONS wall probes would all
-    miss, and are not traced (in a room most of the surface is such). Conservative: a triangle
-    whose box is near and whose corners straddle the height counts; so does any sphere near."""
+def _near_triangles(sc: ti.template(), p, n, lift, R):
+    """(the triangles a probe ray could meet, their count or -1 if more than NEAR_MAX, whether
+    anything could stop a wall probe): one BVH query instead of a traversal per probe ray.
+
+    Every probe ray stays within R + lift + DROP R of c = p + lift n, so every triangle it can
+    hit has its box that near. A wall probe runs at height `lift` along the tangent plane, up
+    to R: only a triangle whose box lies within R of c and whose corners straddle that height
+    (or a sphere within R) can stop it. Where none does, the DIRECTIONS wall probes would all
+    miss and are not traced (in a room most of the surface is such)."""
     c = p + n * lift
-    near = 0
+    reach = R + lift + DROP * R
+    near = ti.Vector([0] * NEAR_MAX, ti.i32)
+    count = 0
+    walls = 0
     if ti.static(sc.has_spheres):
         for i in range(sc.n_spheres):
             if (sc.sph_center[i] - c).norm() <= sc.sph_radius[i] + R:
-                near = 1
+                walls = 1
     if ti.static(sc.has_triangles):
         stack = ti.Vector([0] * STACK_SIZE, ti.i32)
         sp = 0
         node = 0
-        if near or not _box_near(sc, 0, c, R):
+        if not _box_near(sc, 0, c, reach):
             node = -1
         while node >= 0:
-            count = sc.node_count[node]
-            if count > 0:
+            n_leaf = sc.node_count[node]
+            if n_leaf > 0:
                 first = sc.node_right_or_first[node]
-                for j in range(first, first + count):
+                for j in range(first, first + n_leaf):
                     v0 = sc.tri_v0[j]
                     v1, v2 = v0 + sc.tri_e1[j], v0 + sc.tri_e2[j]
-                    h = ti.Vector([(v0 - p).dot(n), (v1 - p).dot(n), (v2 - p).dot(n)])
-                    margin = 0.01 * lift
-                    if h.min() <= lift + margin and h.max() >= lift - margin:
-                        gap = ti.max(ti.max(ti.min(ti.min(v0, v1), v2) - c, c - ti.max(ti.max(v0, v1), v2)), 0.0)
+                    gap = ti.max(ti.max(ti.min(ti.min(v0, v1), v2) - c, c - ti.max(ti.max(v0, v1), v2)), 0.0)
+                    if gap.norm_sqr() <= reach * reach:
+                        if count >= 0 and count < NEAR_MAX:
+                            near[count] = j
+                            count += 1
+                        else:
+                            count = -1
                         if gap.norm_sqr() <= R * R:
-                            near = 1
+                            h = ti.Vector([(v0 - p).dot(n), (v1 - p).dot(n), (v2 - p).dot(n)])
+                            margin = 0.01 * lift
+                            if h.min() <= lift + margin and h.max() >= lift - margin:
+                                walls = 1
                 node = -1
             else:
                 left, right = node + 1, sc.node_right_or_first[node]
                 node = -1
-                if _box_near(sc, left, c, R):
+                if _box_near(sc, left, c, reach):
                     node = left
-                if _box_near(sc, right, c, R):
+                if _box_near(sc, right, c, reach):
                     if node < 0:
                         node = right
                     else:
                         stack[sp] = right
                         sp += 1
-            if near:
-                node = -1
+            if count < 0 and walls:
+                node = -1            # nothing more to learn: every ray goes through the BVH
                 sp = 0
             elif node < 0 and sp > 0:
                 sp -= 1
                 node = stack[sp]
-    return near
+    return near, count, walls
 
 
 @ti.func
-def _extent(sc: ti.template(), p, n, t, R, lift, tri, walls):
+def _extent(sc: ti.template(), p, n, t, R, lift, tri, walls, near, count):
     """How far the surface reaches from p along the tangent direction t, up to R: to a wall
-    (probed only where `walls`, _walls_near), or to where the surface ends, found to within
+    (probed only where `walls`, _near_triangles), or to where the surface ends, found to within
     REL_PRECISION of its own length (the fit's lines are drawn through these ends, and a
     relative error keeps them true near p too)."""
     rho = R
     if walls:
-        wall = sc.trace(p + n * lift, t, R, False)
+        wall = _probe_ray(sc, near, count, p + n * lift, t, R, False)
         if wall.kind >= 0:
             rho = 0.98 * wall.t          # the probe down must not start inside the wall
-    if not _surface_below(sc, p, n, t, rho, lift, R, tri):
+    if not _surface_below(sc, p, n, t, rho, lift, R, tri, near, count):
         hi = rho                      # the surface ends before hi ...
         lo = 0.0
         for _ in range(HALVINGS):     # ... and by halving, after lo
-            if _surface_below(sc, p, n, t, 0.5 * hi, lift, R, tri):
+            if _surface_below(sc, p, n, t, 0.5 * hi, lift, R, tri, near, count):
                 lo = 0.5 * hi
                 break
             hi *= 0.5
         if lo > 0.0:                  # else the surface ends within R / 2^HALVINGS of p
             while hi - lo > REL_PRECISION * hi:
                 mid = 0.5 * (lo + hi)
-                if _surface_below(sc, p, n, t, mid, lift, R, tri):
+                if _surface_below(sc, p, n, t, mid, lift, R, tri, near, count):
                     lo = mid
                 else:
                     hi = mid
@@ -183,15 +213,18 @@ def _extent(sc: ti.template(), p, n, t, R, lift, tri, walls):
 
 @ti.func
 def _probe_setup(sc: ti.template(), p, n, R, tri, shortcuts: ti.template()):
-    """(lift, the MP's triangle, whether walls may be near) for _extent. Without `shortcuts`
-    (tests: the reference) every probe is a ray."""
+    """(lift, the MP's triangle, whether walls may be near, the triangles near and their count)
+    for _extent. Without `shortcuts` (tests: the reference) every probe is a ray through the
+    BVH."""
     lift = ti.max(LIFT * R, 4.0 * sc.ray_eps)
     walls = 1
     own = -1
+    near = ti.Vector([0] * NEAR_MAX, ti.i32)
+    count = -1
     if ti.static(shortcuts):
-        walls = _walls_near(sc, p, n, lift, R)
+        near, count, walls = _near_triangles(sc, p, n, lift, R)
         own = tri
-    return lift, own, walls
+    return lift, own, walls, near, count
 
 
 @ti.func
@@ -207,12 +240,12 @@ def disc_shares(sc: ti.template(), p, n, R, tri, shortcuts: ti.template()):
     half the area). `tri`: the MP's triangle (-1: none); `shortcuts`: spare the rays that
     the scene's geometry answers (_over_own_triangle, _walls_near)."""
     t1, t2 = onb(n)
-    lift, own, walls = _probe_setup(sc, p, n, R, tri, shortcuts)
+    lift, own, walls, near, count = _probe_setup(sc, p, n, R, tri, shortcuts)
     full = 0.0
     inner = 0.0
     for k in range(DIRECTIONS):        # not unrolled: the probes are the kernel's largest code
         _, t = _direction(k, t1, t2)
-        rho = _extent(sc, p, n, t, R, lift, own, walls)
+        rho = _extent(sc, p, n, t, R, lift, own, walls, near, count)
         full += rho * rho
         r_inner = ti.min(rho, R * ti.static(1.0 / math.sqrt(2.0)))
         inner += r_inner * r_inner
@@ -380,11 +413,11 @@ def disc_linear_fits(sc: ti.template(), p, n, R, tri, shortcuts: ti.template()):
     convex corner, integrated over QUADRATURE thin sectors. The gather counts the photons in that
     region only, so a photon across a wall (a leak) or a gap does not count."""
     t1, t2 = onb(n)
-    lift, own, walls = _probe_setup(sc, p, n, R, tri, shortcuts)
+    lift, own, walls, near, count = _probe_setup(sc, p, n, R, tri, shortcuts)
     rhos = ti.Vector([1.0] * DIRECTIONS)
     for k in range(DIRECTIONS):        # not unrolled: the probes are the kernel's largest code
         _, t = _direction(k, t1, t2)
-        rhos[k] = _extent(sc, p, n, t, R, lift, own, walls) / R
+        rhos[k] = _extent(sc, p, n, t, R, lift, own, walls, near, count) / R
     packed = pack_ends(rhos)
     share, slope = 1.0, ti.Vector([0.0, 0.0, 0.0])
     share_inner, slope_inner = 1.0, ti.Vector([0.0, 0.0, 0.0])
