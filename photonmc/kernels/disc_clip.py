@@ -15,9 +15,10 @@ directions of the tangent plane:
   - the surface ending (a convex edge, a gap): a short ray down onto the surface at the end of
     the free stretch finds nothing, and halvings then a bisection find where it ends, to
     REL_PRECISION of its own length.
-Two shortcuts spare rays whose answer the geometry gives (the same shares, tested): a point over
-the MP's own flat triangle has the surface under it, and where nothing within R reaches the
-wall probes' height (a BVH query) no wall probe can hit (docs/guiding.md, "What the probes
+Shortcuts spare rays whose answer the geometry gives (the same shares, tested): a point over
+the MP's own flat triangle has the surface under it; one BVH query lists the triangles the
+probe rays could meet, which they are then tested against alone; and where none of those
+reaches the wall probes' height, no wall probe can hit (docs/guiding.md, "What the probes
 cost"). Each direction's free length rho_k stands for its sector, so the share is
 sum_k rho_k^2 / (DIRECTIONS R^2), and the estimate divides by pi R^2 x share. The share of the
 disc of half the area (the balanced radius rule's probe, methods/sppm.py) comes from the same

@@ -462,7 +462,7 @@ class Sppm(Method):
         pixel every PROBE_ALL_EVERY passes; elsewhere the full disc (share 1, the plain
         estimator: an edge not yet found costs its bias until the next pass that probes all).
         The probes cost up to 16-48 rays per MP, several times its camera path (fewer where the
-        MP's own flat triangle and a clear neighbourhood answer them: disc_clip._probe_setup),
+        MP's own flat triangle and the triangles near answer them: disc_clip._probe_setup),
         so a pixel whose MPs were found clear for EDGE_MEMORY passes (its radius has shrunk off
         the edge) is probed with the others again. (Probing clear pixels ever more rarely was
         measured and dropped: docs/guiding.md, "What the probes cost".)"""
