@@ -239,7 +239,7 @@ def _direction(k, t1, t2):
 def disc_shares(sc: ti.template(), p, n, R, tri, shortcuts: ti.template()):
     """(share of the disc of radius R at p, normal n, on its surface; the same for the disc of
     half the area). `tri`: the MP's triangle (-1: none); `shortcuts`: spare the rays that
-    the scene's geometry answers (_over_own_triangle, _walls_near)."""
+    the scene's geometry answers (_over_own_triangle, _near_triangles)."""
     t1, t2 = onb(n)
     lift, own, walls, near, count = _probe_setup(sc, p, n, R, tri, shortcuts)
     full = 0.0
