@@ -49,7 +49,7 @@ def probed(tmp_path_factory):
     """For each of POINTS: the clipped shares (full, inner) and the linear fits (share, slope,
     share of the inner disc), from one kernel; then the same shares probed again knowing the
     floor's triangle under the point, with the probes' shortcuts (_over_own_triangle,
-    _walls_near)."""
+    _near_triangles)."""
     path = tmp_path_factory.mktemp("disc") / "scene.xml"
     path.write_text(f'<scene version="3.0.0">{FLOOR_AND_WALL}</scene>')
     dscene = DeviceScene(load_scene(path))
