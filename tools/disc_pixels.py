@@ -21,22 +21,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from effort_study import REPO, SCENES  # noqa: E402
+from effort_study import REPO, SCENES, room_job  # noqa: E402
 
 from photonmc.imageio import read_image  # noqa: E402
-from photonmc.loop import Job  # noqa: E402
-
-
-def luminance(image: np.ndarray) -> np.ndarray:
-    return image[..., 0] * 0.2126 + image[..., 1] * 0.7152 + image[..., 2] * 0.0722
+from photonmc.metrics import luminance  # noqa: E402
 
 
 def render_passes(room: str, method: str, options: dict, seed: int, passes: int) -> np.ndarray:
     scene, _, params = SCENES[room]
-    path = REPO / "scenes" / scene
-    job = Job(scene=str(path.resolve() if path.suffix == ".xml" else path / "scene.xml"), params=params,
-              method=method, options=options, seed=seed)
-    p = job.prepare()
+    p = room_job(scene, params, method, options, seed).prepare()
     try:
         for _ in range(passes):
             p.method.iterate()

@@ -95,15 +95,20 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "glass-table": ("../tools/heldout/glass-table.xml", "../../tools/heldout/glass-table-64.exr", {"res": "64"})}
 
 
+def room_job(scene: str, params: dict, method: str, options: dict, seed: int) -> Job:
+    """The render of one of SCENES' scenes (its first field: a bundled scene's folder, or an
+    XML path relative to scenes/)."""
+    path = REPO / "scenes" / scene
+    return Job(scene=str(path.resolve() if path.suffix == ".xml" else path / "scene.xml"), params=params,
+               method=method, options=options, seed=seed)
+
+
 def render_for(scene: str, params: dict, method: str, options: dict, seed: int, seconds: float, after_pass=None,
                after_render=None):
     """`seconds` of rendering after a warm-up iteration (compilation excluded); after_pass(m)
     is called after each pass, after_render(m, elapsed seconds) once at the end, before the
     method is released. Returns (image, iterations, photons or chain steps per pass)."""
-    path = REPO / "scenes" / scene
-    job = Job(scene=str(path.resolve() if path.suffix == ".xml" else path / "scene.xml"), params=params, method=method, options=options,
-              seed=seed)
-    p = job.prepare()
+    p = room_job(scene, params, method, options, seed).prepare()
     try:
         m = p.method
         m.warm_up()
