@@ -202,6 +202,12 @@ def _add_vcm_options(parser):
                         "plainly, as sppm's, without the chains) where the chains' lower photon variance does not "
                         "pay for their work, both counted as the render goes; off: chain passes only "
                         "(docs/guiding.md, 'Uniform passes where the chains do not pay')")
+    g.add_argument("--pass-length", choices=["balanced", "regenerations"],
+                   help="visibility, spatial-tf: balanced (default) makes a chain pass last until each chain "
+                        "has met up to 10 visible uniform proposals, fewer (down to 1) where the effort balance "
+                        "says the camera side gains more from shorter passes than the chains lose; "
+                        "regenerations: always 10 (docs/guiding.md, 'Guided passes as long as the camera side "
+                        "allows')")
     g.add_argument("--vcm-passes", choices=["auto", "measured", "off"],
                    help="mbe: measured (default) makes a pass a vcm pass (independent light subpaths, no "
                         "chains) where both kinds' measured variance per pass x work says it removes more error "
@@ -238,7 +244,7 @@ def _method_options(args) -> dict:
             "large_step": args.large_step, "suffix_mutation": args.suffix_mutation,
             "mutation": args.mutation, "warm_start": args.warm_start,
             "balance": args.balance, "uniform_weight": args.uniform_weight, "vcm_passes": args.vcm_passes,
-            "uniform_passes": args.uniform_passes,
+            "uniform_passes": args.uniform_passes, "pass_length": args.pass_length,
             "film_weights": args.film_weights, "pixel_samples": args.pixel_samples,
             "camera_variance": args.camera_variance, "pss_guide": args.pss_guide}
 

@@ -33,7 +33,9 @@ FORMAT = "photonmc-render-state"
 # 3: mbe's chain film weighs each pass by its camera subpaths per pixel (film.py, weighted films)
 # 4: the spatial target's clusters keep their points' mean area (clusters.py)
 # 5: ... only where they are frozen (`--spatial-updates epochs`): three statistics otherwise
-FORMAT_VERSION = 5
+# 6: the guided methods' pass-length state (visible counts, recorded shares) and the effort
+#    balance's shared photon variance (stop 65)
+FORMAT_VERSION = 6
 SCALARS = (bool, int, float, str, type(None))
 SKIPPED = ("dscene", "settings", "options")       # given by the job, not computed
 SPARSE_MIN_BYTES = 1 << 20

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from photonmc.loop import Job
-from photonmc.methods.effort import EffortBalance, least_variance_share
+from photonmc.methods.effort import PASS_LENGTH_MARGIN, EffortBalance, least_variance_share
 
 from .conftest import SCENES
 
@@ -530,3 +530,64 @@ def test_film_variance_follows_the_twins_model():
         print(f"M = {mark}: film variance {film:.4g}, c = {c:.3g}, pairs' model {v_pos / mark:.4g}")
         assert 0.5 < c < 2.0
         assert film < 0.4 * v_pos / mark
+
+
+def _observe_chain_passes(balance, n, k, v_c, v_p, rays, deposits_per_path_photon, shared=0.0, passes=12):
+    """Passes of n photons and k camera paths per pixel, observed exactly from
+    V = V_c/k + V_p/n + shared (shared: the variance both photon halves share), deposits
+    growing as k x n."""
+    for _ in range(passes):
+        spread = 2 * v_c / k + 2 * v_p / n + 2 * shared
+        balance.observe(n, spread, v_p, 1.0, rays * k, 3.0 * n, camera_paths=k,
+                        deposits=deposits_per_path_photon * k * n, shared_variance=shared)
+
+
+def test_shared_photon_variance_is_not_read_as_camera_variance():
+    """The guided passes' normalisation is shared by both photon halves: consecutive passes see
+    it and the even-odd difference does not. Given to observe(), it is left out of V_c."""
+    balance = EffortBalance(1000, 10000, 2.0 / 3.0)
+    _observe_chain_passes(balance, 10000, 8, v_c=0.02, v_p=5.0, rays=100.0, deposits_per_path_photon=0.0,
+                          shared=0.001)
+    assert balance.shares()[0] == pytest.approx(0.02)
+    assert balance.shared_variances[-1] == pytest.approx(0.001 * 10000)
+
+
+def test_guided_pass_length_follows_the_camera_side_and_its_deposits():
+    """EffortBalance.chain_pass_length on known models (V = V_c/K + V_p/n + shared, K within 2x
+    of the pass's): where the camera side wants more camera paths than a pass may have (64),
+    the shortest pass wins; where it carries no error, the longest (it loses the fewest steps
+    to the chains' start); where K is free, the longest unless a camera path's work is mostly
+    the deposits a pass's photons make into its points (growing with the pass); a noisy
+    normalisation (the shared variance), or chains that record little of a short pass, pull
+    the choice back from the shortest; and it shortens only where it expects at most
+    PASS_LENGTH_MARGIN of the longest pass's error."""
+    lengths = np.geomspace(20000, 200000, 24).astype(np.int64)
+    ones = np.ones(len(lengths))
+    n = 200000
+
+    def choose(v_c, k=64, shared=0.0, efficiency=ones, deposits=5e-4):
+        balance = EffortBalance(4096, 4096, 2.0 / 3.0)
+        _observe_chain_passes(balance, n, k, v_c, v_p=20.0, rays=9000.0, deposits_per_path_photon=deposits,
+                              shared=shared / n)
+        return balance.chain_pass_length(lengths, efficiency, 1.0, n, k, 64), balance.pass_length_gain
+
+    length, gain = choose(v_c=0.1)                   # K wanted: 300
+    assert length == lengths[0] and gain <= PASS_LENGTH_MARGIN
+    assert choose(v_c=0.0)[0] == lengths[-1]
+    # K wanted about 8-30, free within [8, 32]: deposits decide
+    length, gain = choose(v_c=0.001, k=16, deposits=0.0)
+    assert length == lengths[-1] and gain == pytest.approx(1.0, abs=1e-3)
+    length, gain = choose(v_c=0.001, k=16, deposits=0.5)
+    assert length < lengths[-1] and gain <= PASS_LENGTH_MARGIN
+    assert choose(v_c=0.1, efficiency=lengths / lengths[-1])[0] > lengths[0]
+    assert lengths[0] < choose(v_c=0.1, shared=20.0)[0] < lengths[-1]
+    length, gain = choose(v_c=0.1, shared=50.0)
+    assert length == lengths[-1] and PASS_LENGTH_MARGIN < gain < 1.0, gain
+    # Without deposits a camera path's work does not grow with the pass, and where K = n / n*
+    # is free (n* = 25,000 here, K from 4 to 8 within [8 / 2, 8 x 2]) it keeps the split at
+    # every length: the one whose chains lose the least of it wins.
+    free = EffortBalance(4096, 4096, 2.0 / 3.0)
+    _observe_chain_passes(free, n, 8, 2.0 / 3.0 * 3000.0 * 20.0 / 25000.0 ** 2, 20.0, 9000.0, 0.0)
+    longer = np.geomspace(100000, 200000, 12).astype(np.int64)
+    share = 1.0 - (1.0 - np.exp(-longer / 20000.0)) / (longer / 20000.0)     # guided.recorded_share
+    assert free.chain_pass_length(longer, share, share[-1], n, 8, 64) == longer[-1]

@@ -53,6 +53,9 @@ POSITION_EXPONENT = 1.5
 # closet: photon-pass time against segments and deposits; docs/effort.md).
 DEPOSIT_WORK = 1.5
 CANDIDATES = 512         # log-spaced candidates the bias-aware choice is searched over
+# chain_pass_length shortens a guided pass only where it expects at most this share of the
+# longest pass's error (docs/guiding.md, "Guided passes as long as the camera side allows").
+PASS_LENGTH_MARGIN = 0.8
 
 
 class EffortBalance:
@@ -82,6 +85,7 @@ class EffortBalance:
         self.radius_sq = None                # mean R^2 of the last pass
         self.sum_camera_work = 0.0
         self.sum_camera_paths = 0.0          # camera paths per pixel, over all iterations
+        self.sum_camera_photons = 0.0        # camera paths per pixel x photons, over all iterations
         self.sum_deposits = 0.0
         self.sum_photon_work = 0.0           # photon segments
         self.sum_photons = 0.0
@@ -90,6 +94,9 @@ class EffortBalance:
         self.last_photons = None
         self.last_camera_paths = None
         self.bias_ratio = 0.0                # the image's squared radius bias / its photon variance
+        self.last_shared = 0.0               # the last pass's shared photon variance (observe)
+        self.pass_length_gain = None         # chain_pass_length's last expected error ratio
+        self.shared_variances = []           # V_s: shared photon variance x photons, per pass
 
     def observe_bias(self, bias_sq: float, variance: float, spread: float, z: float) -> None:
         """The image's squared radius bias and its photon variance as the current radii would
@@ -111,7 +118,7 @@ class EffortBalance:
     def observe(self, photons: int, spread: float, half_difference: float, radius_sq: float,
                 camera_work: float, photon_work: float, camera_paths: int = 1, deposits: float = 0.0,
                 keep: bool = True, camera_held: float | None = None,
-                half_difference_mp: float | None = None) -> float | None:
+                half_difference_mp: float | None = None, shared_variance: float = 0.0) -> float | None:
         """One iteration of `photons` photon paths and `camera_paths` camera paths per pixel:
         `spread` = mean over pixels of (this iteration's estimate - the last one's)^2,
         `half_difference` = mean of n (t_a - t_b)^2 / 4, `radius_sq` = mean squared gather
@@ -120,21 +127,30 @@ class EffortBalance:
         and the V_p estimate out of the balance's estimates (mbe's measurement passes).
         camera_held: this pass's V_c per camera path with the pixel positions held (twins),
         which a held_camera balance takes instead of the pair's. half_difference_mp: the mean
-        over measurement points of each one's own half_difference (photon_correlation)."""
+        over measurement points of each one's own half_difference (photon_correlation).
+        shared_variance: the variance of this pass's photon estimate that its halves share (the
+        guided methods' normalisation, from its count of visible uniform proposals), left out
+        of V_c and kept per photon (V_s) for the choice of the guided pass length."""
         self.observed += 1
         self.sum_deposits += deposits
         self.sum_camera_work += camera_work
         self.sum_camera_paths += camera_paths
+        self.sum_camera_photons += camera_paths * photons
         self.sum_photon_work += photon_work
         self.sum_photons += photons
         last, self.last_photons = self.last_photons, photons
         last_k, self.last_camera_paths = self.last_camera_paths, camera_paths
+        last_shared, self.last_shared = self.last_shared, shared_variance
+        if keep and shared_variance > 0.0:
+            self.shared_variances.append(shared_variance * photons)
+            del self.shared_variances[:-HISTORY]
         if last is None or not radius_sq > 0:
             return None
         # Two iterations' estimates are independent:
         # E[(e_i - e_j)^2] = V_c (1/K_i + 1/K_j) + V_p (1/n_i + 1/n_j).
         v_p = half_difference
-        v_c = (spread - v_p * (1.0 / photons + 1.0 / last)) / (1.0 / camera_paths + 1.0 / last_k)
+        v_c = (spread - v_p * (1.0 / photons + 1.0 / last) - shared_variance - last_shared) \
+            / (1.0 / camera_paths + 1.0 / last_k)
         if self.held_camera:
             if keep:
                 self.pair_sum += v_c
@@ -252,21 +268,31 @@ class EffortBalance:
             return math.inf
         return math.sqrt(self.alpha * camera_work / photon_work * v_p / v_c)
 
-    def _error_with_bias(self, model, photons, camera_paths, photons_now: float, camera_paths_now: float):
+    def _error_with_bias(self, model, photons, camera_paths, photons_now: float, camera_paths_now: float,
+                         efficiency=1.0, efficiency_now: float = 1.0, camera_work_now: float | None = None,
+                         shared: float = 0.0):
         """The image's error at a fixed budget for candidate splits (arrays of photons and
         camera paths per pass), in units of its photon variance now, had the render used each
         split throughout: camera variance V_c / K x passes^-1 (passes ~ 1 / work per pass);
         photon variance and squared bias fall with the photons per unit of work x, as
         x^-alpha (the radii shrink as the photons come, so a photon removes alpha of its share)
         and x^-2(1-alpha) (bias ~ R^2 ~ N^(alpha-1)). At bias_ratio 0 its least is the closed
-        form's n* (K = n / n*)."""
+        form's n* (K = n / n*). efficiency: the share of a pass's photons that carry its
+        estimate (a guided pass's chain steps after their first regeneration), against the
+        share in the passes V_p was measured on; camera_work_now: the work per camera path of
+        the passes now, where the candidates' differs (their deposits). shared: V_s, the photon
+        variance x photons that a pass's halves share (EffortBalance.observe), which falls as
+        1 / the photons per unit of work whatever the radius."""
         v_c, v_p, camera_work, photon_work = model
         work = camera_work * camera_paths + photon_work * photons
-        work_now = camera_work * camera_paths_now + photon_work * photons_now
-        gain = (photons / work) / (photons_now / work_now)     # photons per unit of work, relative
+        work_now = (camera_work if camera_work_now is None else camera_work_now) * camera_paths_now + photon_work * photons_now
+        # photons that count per unit of work, relative
+        gain = (photons * efficiency / work) / (photons_now * efficiency_now / work_now)
         photon_now = v_p / photons_now
+        steps_gain = (photons / work) / (photons_now / work_now)
         return (v_c / camera_paths * work / work_now / photon_now
-                + gain ** -self.alpha + self.bias_ratio * gain ** (-2.0 * (1.0 - self.alpha)))
+                + gain ** -self.alpha + self.bias_ratio * gain ** (-2.0 * (1.0 - self.alpha))
+                + shared / v_p / steps_gain)
 
     def next_camera_paths(self, photons: int, most: int) -> int:
         """Camera paths per pixel for a pass of `photons` photon paths: photons / n*, within
@@ -284,6 +310,52 @@ class EffortBalance:
             target = float(ks[int(np.argmin(error))])
         target = min(max(target, k / MAX_CHANGE), k * MAX_CHANGE)
         return int(min(max(round(target), 1), most))
+
+    def chain_pass_length(self, lengths, efficiency, efficiency_now: float, steps_now: float,
+                          camera_paths: int, most: int) -> int | None:
+        """The guided methods' pass length (chain steps) among `lengths`, each with the share
+        `efficiency` of its steps that its chains record (those after a chain's first visible
+        uniform proposal; the steps before it are lost, more of them the shorter the pass).
+        Each candidate is scored as a render made of such passes throughout (_error_with_bias),
+        at the camera paths per pixel next_camera_paths would give it, n / n* within
+        [1, most] and within MAX_CHANGE of `camera_paths`, the pass's. Where K is free the
+        longest candidate wins (it loses the fewest steps and K keeps the split); where
+        K = n / n* would exceed `most`, or what K can grow to by the next pass, a long pass
+        starves the camera side, and the least balances the steps a shorter pass loses against
+        the camera passes it gains (docs/guiding.md, "Guided passes as long as the camera side
+        allows"). A camera path's work includes the deposits into its measurement points, and
+        those grow with the photons of the pass: a candidate's is its rays plus DEPOSIT_WORK x
+        the deposits per camera path and recorded photon measured so far, times its recorded
+        photons (at a fixed pass length, as in next_camera_paths, they are one constant).
+        None where there is nothing to go by yet."""
+        base = self._model(deposits_as_camera_work=False)
+        if base is None or not self.sum_camera_photons > 0.0:
+            return None
+        v_c, v_p, rays, photon_work = base
+        deposit_work = DEPOSIT_WORK * self.sum_deposits / self.sum_camera_photons
+        shared = math.fsum(self.shared_variances) / len(self.shared_variances) if self.shared_variances else 0.0
+        camera_work_now = rays + deposit_work * steps_now
+        k_now = float(self.last_camera_paths or 1)
+        k_low = max(camera_paths / MAX_CHANGE, 1.0)
+        k_high = max(min(camera_paths * MAX_CHANGE, float(most)), k_low)
+        errors = []
+        for n, e in zip(lengths, efficiency):
+            recorded = float(n) * e / efficiency_now         # photons at the efficiency now
+            model = self._split_photon_side((v_c, v_p, rays + deposit_work * recorded, photon_work), recorded)
+            best = self._optimum(model)
+            if best is None or math.isinf(best):
+                k = k_low                # no camera-side error measured: as few camera paths as allowed
+            elif best > 0.0:
+                k = min(max(n / best, k_low), k_high)
+            else:
+                k = k_high               # no photon variance shared: next_camera_paths' target is inf
+            errors.append(self._error_with_bias(model, float(n), k, float(steps_now), k_now, e, efficiency_now,
+                                                camera_work_now, shared))
+        best = int(np.argmin(errors))
+        self.pass_length_gain = errors[best] / errors[-1]     # the error expected against the longest (stats)
+        # The model leaves out what the chains do between regenerations; where it expects
+        # little, keep the longest (the held-out closet: expected 0.92-1.0, measured 1.09x).
+        return int(lengths[best] if self.pass_length_gain <= PASS_LENGTH_MARGIN else lengths[-1])
 
     def next_photons(self) -> int:
         """Photons for the next pass: n*, at most MAX_CHANGE times the last pass's (so twice
@@ -310,6 +382,9 @@ class EffortBalance:
                 "bias_ratio": self.bias_ratio,
                 "camera_variance": shares[0] if shares else None,
                 "photon_correlation": self.photon_correlation(),
+                "shared_photon_variance": (math.fsum(self.shared_variances) / len(self.shared_variances)
+                                           if self.shared_variances else None),
+                "pass_length_gain": self.pass_length_gain,
                 "photon_variance_per_photon": shares[1] if shares else None,
                 "camera_work_per_pass": self.sum_camera_work / self.observed if self.observed else None,
                 "segments_per_photon": self.sum_photon_work / self.sum_photons if self.sum_photons else None}

@@ -46,12 +46,17 @@ from ..kernels.photon import BOUNCE_DIMS, LIGHT_DIMS, dimensions, photon_segment
 from ..kernels.pss_guide import PAIRS, PssGuide
 from ..kernels.sampling import luminance
 from .clusters import UNKNOWN, HitDensityClusters
-from .effort import UniformWeight, uniform_weight_option
+from .effort import HISTORY, UniformWeight, uniform_weight_option
 from .photon_passes import PhotonPassChoice
 from .sppm import FIXED_ONE, Sppm
 from ..taichi_frontend import data_oriented
 
 REGENERATIONS = 10       # visible uniform proposals each chain should see per pass
+# ... at most: where so long a pass would need more camera paths per pixel than a pass allows,
+# the effort balance shortens it, down to this many (GuidedPhotons._balanced_pass_length).
+MIN_REGENERATIONS = 1
+PASS_LENGTH_CANDIDATES = 48
+B_MEMORY = 0.9           # the visible share that sizes a balanced pass: each pass's counts fade by this
 MAX_STEPS_PER_PASS = 1 << 24
 # A ladder's upper levels start each pass as copies of level 0's state and burn in within the
 # pass; the exchanges pass their states down to level 0 too, so no level is exact until the
@@ -82,6 +87,16 @@ MIN_MUTATION = 0.05
 # Vertex lists (GuidedPhotons.trace): each state keeps its path's photon vertices, so that it
 # deposits without being traced again; at most this many vertices over all lists, else traced.
 VERTEX_BUDGET = 1 << 21
+
+
+def recorded_share(regenerations, burn_in: float):
+    """The expected share of a pass's steps that a ladder records, where it expects
+    `regenerations` visible uniform proposals in the pass (R = b x its steps): it records from
+    its first one (an exact draw from the pass's target: ChainPool.run_pass), whose step is
+    near exponential with rate b, and only after the burn-in share beta, so
+    f = (1 - beta) - (e^(-beta R) - e^(-R)) / R  (beta 0: 1 - (1 - e^(-R)) / R)."""
+    r = np.maximum(np.asarray(regenerations, float), 1e-12)
+    return (1.0 - burn_in) - (np.exp(-burn_in * r) - np.exp(-r)) / r
 
 
 @ti.func
@@ -119,7 +134,14 @@ class GuidedPhotons(Sppm):
                # auto: a pass traces its photons plainly, without the chains, where the chains'
                # lower photon variance does not pay for their work (methods/photon_passes.py,
                # docs/guiding.md "Uniform passes where the chains do not pay"); off: chain passes only.
-               "uniform_passes": "auto"}
+               "uniform_passes": "auto",
+               # balanced: a pass lasts REGENERATIONS visible uniform proposals per chain, or
+               # fewer (down to MIN_REGENERATIONS) where the effort balance would want more
+               # camera paths per pixel than a pass allows (_balanced_pass_length);
+               # regenerations: always REGENERATIONS.
+               "pass_length": "balanced",
+               # API only, for measurements: the visible uniform proposals a pass asks of each chain.
+               "regenerations": REGENERATIONS}
     # Every step's uniform photon is also an estimate of its own, sppm's (an accumulator after
     # the levels'), joined to the chains' with the least-variance weight beta; the chains'
     # mutations are made with probability 1 - beta (at least MIN_MUTATION): where uniform
@@ -188,6 +210,16 @@ class GuidedPhotons(Sppm):
             raise SettingsError(f"--uniform-passes must be 'auto' or 'off', got '{opts['uniform_passes']}'")
         # The choice reads beta's even-odd sums and the balance's counted work: two ladders at least.
         self.uniform_passes_on = opts["uniform_passes"] == "auto" and self.effort is not None
+        if opts["pass_length"] not in ("balanced", "regenerations"):
+            raise SettingsError(f"--pass-length must be 'balanced' or 'regenerations', got '{opts['pass_length']}'")
+        self.regenerations = opts["regenerations"]
+        if isinstance(self.regenerations, bool) or not isinstance(self.regenerations, (int, float)) \
+                or not 1 <= self.regenerations <= 1000:
+            raise SettingsError(f"regenerations is the visible uniform proposals a pass asks of each chain, "
+                                f"a number from 1 to 1000, got {self.regenerations!r}")
+        # The choice reads K = n / n* from the balance, so only where the balance chooses K.
+        self.balanced_length = (opts["pass_length"] == "balanced" and self.effort is not None
+                                and self.camera_paths_auto)
         self.force_uniform = False      # warm_up: compile the uniform pass too
         n_pairs = opts["pss_guide"]
         if isinstance(n_pairs, bool) or str(n_pairs) not in [str(k) for k in range(len(PAIRS) + 1)]:
@@ -275,6 +307,7 @@ class GuidedPhotons(Sppm):
         self.last_steps = self.photons_per_iteration
         self.b_sum = np.zeros(L)
         self.b_uniform_sum = np.zeros(L)
+        self.b_difference_sq = np.zeros(L)      # sum over passes of (chained - uniform mean)^2
         self.passes_with_b = 0
         self.beta = UniformWeight(self.options["uniform_weight"])
         self.pool.mutation_probability = 1.0
@@ -282,6 +315,12 @@ class GuidedPhotons(Sppm):
         self.uniform_pass = False       # whether the pass being made is a uniform pass
         self.previous_uniform = False   # and the one before it
         self.chain_passes = 0
+        self.inverse_shares = []        # 1 / the recorded share of the last HISTORY passes
+        self.recorded_share_last = None
+        self.planned_regenerations = 0.0
+        self.regeneration_steps = self.photons_per_iteration
+        self.b_pass = 0.0               # this pass's visible share of uniform proposals
+        self.visible_counts = np.zeros(2)     # visible and all uniform proposals, fading by B_MEMORY
 
     # -- the model interface of ChainPool -------------------------------------------------
     @ti.func
@@ -514,7 +553,11 @@ class GuidedPhotons(Sppm):
         guide = self.pss_guide
         tallies = self.pool.run_pass(self, self.seed_u32, it, n_p, extra=guide.readable() if guide else ())
         b = self.pool.normalisations(tallies)
+        self.b_pass = float(b[0])
+        c = tallies["counters"][0]
+        self.visible_counts = B_MEMORY * self.visible_counts + (float(c[UNIFORM_VISIBLE]), float(c[UNIFORM]))
         recorded = tallies["recorded"]
+        self.recorded_share_last = float(recorded[0]) / n_p      # against _recorded_share's model (stats)
         scale = np.where(recorded > 0, b * n_p / np.maximum(recorded, 1e-300), 0.0)
         # The flux: (1 - beta) x the levels' (each at its normalisation) + beta x the uniform
         # photons' (sppm's estimator over this pass's n_U uniform photons, one per step).
@@ -539,9 +582,21 @@ class GuidedPhotons(Sppm):
         if b[0] > 0:
             self.b_sum += b
             self.b_uniform_sum += tallies["uniform_mean"]
+            self.b_difference_sq += (b - tallies["uniform_mean"]) ** 2
             self.passes_with_b += 1
         self.photons_emitted += n_p
         self.work_done += n_p
+
+    def _shared_photon_variance(self, photon_sq: float, n_p: int) -> float:
+        """A chain pass's flux is b x the chains' mean, b the share of its n_p uniform
+        proposals that were visible, and both halves of the pass share that b: its relative
+        variance (1 - b) / (n_p b) is photon noise the even-odd difference does not see and
+        consecutive passes do. Times the mean squared photon estimate (the uniform photons'
+        share, beta, taken as the chains' too: where beta is large b is, and this is small)."""
+        b = self.b_pass
+        if self.uniform_pass or not b > 0.0:
+            return 0.0
+        return photon_sq * (1.0 - b) / (n_p * b)
 
     def _balance_keeps(self) -> bool:
         """The effort balance models the kind of pass being chosen: a pass of the other kind (a
@@ -599,20 +654,61 @@ class GuidedPhotons(Sppm):
     def _steps_this_pass(self) -> int:
         """At least --photons, and enough that every chain meets ~REGENERATIONS visible uniform
         proposals: the pass records a chain only after its first one (ChainPool.run_pass),
-        so a pass too short for that wastes work. Uses the last pass's visible fraction; after a
-        pass that found nothing visible, the next one is twice as long. Ladders, which discard
+        so a pass too short for that wastes work. Uses the last pass's visible fraction (with
+        --pass-length balanced, the passes' fading counts); after a pass that found nothing
+        visible, the next one is twice as long. --pass-length balanced then shortens it where
+        the effort balance says (_balanced_pass_length). Ladders, which discard
         their first half (LADDER_BURN_IN), run at least MIN_STEPS_PER_LADDER steps."""
         n = self.photons_per_iteration
         if self.n_levels > 1:
             n = max(n, MIN_STEPS_PER_LADDER * self.n_chains)
         floor = n
+        b0 = b_sized = 0.0       # the visible share for the model, and the one that sized the pass
+        longest = n
         if self.iterations > 0:
-            b0 = self.b_last[0]
-            want = self.last_steps * 2 if b0 <= 0 else math.ceil(REGENERATIONS / b0) * self.n_chains
+            b0 = b_sized = self.b_last[0]
+            want = self.last_steps * 2 if b0 <= 0 else math.ceil(self.regenerations / b0) * self.n_chains
             n = max(n, min(int(want), MAX_STEPS_PER_PASS))
+            longest = n
+            if self.balanced_length and self.visible_counts[0] > 0 and n > floor:
+                # A pass of few regenerations sees few visible uniform proposals: its own b is
+                # too noisy to size a shorter one; the fading counts are steadier. (The longest
+                # keeps the last pass's b, as with --pass-length regenerations: the smoothed b
+                # there lost the doorway 7 %, docs/guiding.md.)
+                b0 = self.visible_counts[0] / self.visible_counts[1]
+                shorter = self._balanced_pass_length(n, floor, b0)
+                if shorter < n:
+                    n, b_sized = shorter, b0
         self.last_steps = n
+        self.regeneration_steps = longest         # the length the regeneration rule asked for
         self.regeneration_bound = n > floor
+        self.planned_regenerations = b_sized * n / self.n_chains     # per chain, at the b that sized it
+        # The balance's V_p is a mean over passes of their variance per step, which goes as
+        # 1 / the share recorded: the shares' harmonic mean is the one it was measured at.
+        share = float(self._recorded_share([n], b0)[0]) if b0 > 0 and not self.uniform_pass else 1.0
+        self.inverse_shares.append(1.0 / max(share, 1e-6))
+        del self.inverse_shares[:-HISTORY]
         return n
+
+    def _recorded_share(self, lengths, b0: float):
+        """recorded_share for passes of `lengths` steps over this method's ladders."""
+        return recorded_share(np.asarray(lengths, float) * b0 / self.n_chains, self.pool.burn_in)
+
+    def _balanced_pass_length(self, longest: int, floor: int, b0: float) -> int:
+        """The pass length between MIN_REGENERATIONS and REGENERATIONS per chain (`longest`)
+        that the effort balance expects to serve the image best (EffortBalance.chain_pass_length):
+        where the camera side carries the error and a camera path's work (its deposits) grows
+        with the pass, or K would exceed what a pass allows, a shorter pass makes more camera
+        passes and loses more of its chains' first steps (docs/guiding.md, "Guided passes as
+        long as the camera side allows")."""
+        shortest = max(floor, min(longest, math.ceil(min(MIN_REGENERATIONS, self.regenerations) / b0) * self.n_chains))
+        if shortest >= longest or not self.inverse_shares:
+            return longest
+        lengths = np.unique(np.geomspace(shortest, longest, PASS_LENGTH_CANDIDATES).astype(np.int64))
+        efficiency_now = len(self.inverse_shares) / math.fsum(self.inverse_shares)
+        best = self.effort.chain_pass_length(lengths, self._recorded_share(lengths, b0), efficiency_now,
+                                             self.last_steps, self.camera_paths, self.max_camera_paths)
+        return longest if best is None else best
 
     def _prepare_targets(self):
         """Per-MP target factors for levels above visibility (none for `visibility`)."""
@@ -642,6 +738,9 @@ class GuidedPhotons(Sppm):
                 "failures_dropped": int(t[level, FAILURES_DROPPED]),
                 "normalisation_last": float(self.b_last[level]),
                 "normalisation_mean": float(self.b_sum[level] / self.passes_with_b) if self.passes_with_b else None,
+                # the standard error of (mean chained - mean uniform) / mean uniform, from the
+                # passes' differences (independent passes)
+                "normalisation_difference_se": self._normalisation_difference_se(level),
                 "normalisation_uniform_mean": (float(self.b_uniform_sum[level] / self.passes_with_b)
                                                if self.passes_with_b else None),
             })
@@ -651,6 +750,11 @@ class GuidedPhotons(Sppm):
         s.update({
             "chains": self.n_chains,
             "photons_last_iteration": self.last_steps,
+            "pass_length": self.options["pass_length"],
+            "regenerations_per_chain_last": float(self.planned_regenerations),
+            "recorded_share_last": self.recorded_share_last,
+            "recorded_share_model_last": (float(self._recorded_share([self.last_steps], self.b_last[0])[0])
+                                          if self.b_last[0] > 0 else None),
             "target_acceptance": self.target_acceptance,
             "proposal_failures": "drop" if self.drop_failures else "keep",
             "expected_values": self.expected_values,
@@ -670,6 +774,14 @@ class GuidedPhotons(Sppm):
         if swaps:
             s["swap_acceptance"] = swaps
         return s
+
+    def _normalisation_difference_se(self, level: int) -> float | None:
+        p = self.passes_with_b
+        if p < 2 or not self.b_uniform_sum[level] > 0.0:
+            return None
+        mean = (self.b_sum[level] - self.b_uniform_sum[level]) / p
+        variance = max(self.b_difference_sq[level] / p - mean * mean, 0.0) * p / (p - 1)
+        return float(math.sqrt(variance / p) / (self.b_uniform_sum[level] / p))
 
     def progress_fields(self) -> str:
         t = self.totals

@@ -242,6 +242,7 @@ class Sppm(Method):
         self.spread = f.scalar(ti.f64, n)           # per pixel: (this estimate - the last one)^2
         self.half_difference = f.scalar(ti.f64, n)  # per pixel: n (t_a - t_b)^2 / 4
         self.half_difference_mp = f.scalar(ti.f64, n)   # the same per MP, averaged over the pixel's K
+        self.photon_part = f.scalar(ti.f64, n)      # per pixel: this iteration's photon estimate alone
         self.deposits = f.scalar(ti.f64, n)         # per pixel: photons deposited into its MPs this pass
         # Twin camera paths (docs/effort.md): per pixel, V_c with its position held from its last
         # twin; 1 once a twin has reached another MP than its path (a delta choice: its V_c is
@@ -251,7 +252,7 @@ class Sppm(Method):
         self.camera_stochastic = f.scalar(ti.f64, n)
         self.camera_estimate = f.scalar(ti.f64, n)
         self.twin_unmatched = f.scalar(ti.f64, n)
-        self.effort_sums = f.scalar(ti.f64, 13)     # their sums, and the pass's counted work
+        self.effort_sums = f.scalar(ti.f64, 14)     # their sums, and the pass's counted work
         self.level_scale = f.scalar(ti.f64, self.n_acc)     # fixed point -> flux, per accumulator
         if self.uniform_accumulator:
             # Each accumulator's scale as an estimate by itself (level_scale holds them weighted),
@@ -378,11 +379,18 @@ class Sppm(Method):
         self.effort.observe(n_p, spread / n, half / n, radius_sq / max(valid, 1.0),
                             camera_rays + k * n, segments, camera_paths=k,   # rays, and the grid over the MPs
                             deposits=deposits, half_difference_mp=float(sums[12]) / n, keep=self._balance_keeps(),
-                            camera_held=float(sums[10]) / n if self.held_camera and self.iterations >= 1 else None)
+                            camera_held=float(sums[10]) / n if self.held_camera and self.iterations >= 1 else None,
+                            shared_variance=self._shared_photon_variance(float(sums[13]) / n, n_p))
         if self.balanced:
             self.photons_per_iteration = self.effort.next_photons()
         if self.camera_paths_auto:
             self.camera_paths = self.effort.next_camera_paths(n_p, self.max_camera_paths)
+
+    def _shared_photon_variance(self, photon_sq: float, n_p: int) -> float:
+        """The variance of this pass's photon estimate that its two halves share, given the
+        mean over pixels of its square (guided.py: the chains' normalisation); plain photons
+        share none."""
+        return 0.0
 
     def _balance_keeps(self) -> bool:
         """Whether this pass's variances join the effort balance's estimates (guided.py: not a
@@ -736,6 +744,7 @@ class Sppm(Method):
                 self.N[i] = n_new
                 self.R[i] = r_new
             estimate = lum.dot(self.ld_pass[i] + inc / n_p)
+            self.photon_part[i] = lum.dot(inc / n_p)
             self.spread[i] = (estimate - self.estimate_last[i]) ** 2
             self.estimate_last[i] = estimate
             halves = lum.dot(2.0 * (inc - inc_odd) / n_p) - lum.dot(2.0 * inc_odd / n_p)
@@ -826,7 +835,7 @@ class Sppm(Method):
         relative (--balance relmse): each pixel's terms weighted by 1 / (m^2 + eps), m its
         running estimate after `camera_paths` camera paths per pixel and `photons` photons in
         all, eps = (0.1 x the image's mean m)^2 (converge's relMSE)."""
-        sums = ti.Vector([0.0] * 11, ti.f64)
+        sums = ti.Vector([0.0] * 12, ti.f64)
         lum = ti.Vector([0.2126, 0.7152, 0.0722], ti.f64)
         eps = ti.f64(0.0)
         if ti.static(relative):
@@ -843,6 +852,7 @@ class Sppm(Method):
             sums[0] += weight * self.spread[i]
             sums[1] += weight * self.half_difference[i]
             sums[10] += weight * self.half_difference_mp[i]
+            sums[11] += weight * self.photon_part[i] ** 2
             sums[8] += weight * self.camera_estimate[i]
             sums[9] += self.twin_unmatched[i]
             sums[4] += self.deposits[i]
@@ -865,6 +875,7 @@ class Sppm(Method):
         self.effort_sums[10] = sums[8]                # twins: V_c with positions held, pixels unmatched
         self.effort_sums[11] = sums[9]
         self.effort_sums[12] = sums[10]               # half_difference per MP
+        self.effort_sums[13] = sums[11]               # the photon estimates squared
         self.counters[2] = 0
         self.counters[3] = 0
 
