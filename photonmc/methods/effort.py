@@ -318,15 +318,19 @@ class EffortBalance:
         uniform proposal; the steps before it are lost, more of them the shorter the pass).
         Each candidate is scored as a render made of such passes throughout (_error_with_bias),
         at the camera paths per pixel next_camera_paths would give it, n / n* within
-        [1, most] and within MAX_CHANGE of `camera_paths`, the pass's. Where K is free the
-        longest candidate wins (it loses the fewest steps and K keeps the split); where
-        K = n / n* would exceed `most`, or what K can grow to by the next pass, a long pass
-        starves the camera side, and the least balances the steps a shorter pass loses against
-        the camera passes it gains (docs/guiding.md, "Guided passes as long as the camera side
-        allows"). A camera path's work includes the deposits into its measurement points, and
-        those grow with the photons of the pass: a candidate's is its rays plus DEPOSIT_WORK x
-        the deposits per camera path and recorded photon measured so far, times its recorded
-        photons (at a fixed pass length, as in next_camera_paths, they are one constant).
+        [1, most] and within MAX_CHANGE of `camera_paths`, the pass's. Where K is free and a
+        camera path's work does not grow with the pass, the longest candidate wins (it loses
+        the fewest steps and K keeps the split); where K = n / n* would exceed `most`, or what
+        K can grow to by the next pass, a long pass starves the camera side, and the least
+        balances the steps a shorter pass loses against the camera passes it gains
+        (docs/guiding.md, "Guided passes as long as the camera side allows"). A camera path's
+        work includes the deposits into its measurement points, and those grow with the
+        photons of the pass: a candidate's is its rays plus DEPOSIT_WORK x the deposits per
+        camera path and recorded photon measured so far, times its recorded photons (at a
+        fixed pass length, as in next_camera_paths, they are one constant); where they carry
+        the work, shorter passes win with K free too. The normalisation's shared variance V_s
+        counts against short passes. A candidate shorter than the longest is taken only where
+        its expected error is at most PASS_LENGTH_MARGIN of the longest's.
         None where there is nothing to go by yet."""
         base = self._model(deposits_as_camera_work=False)
         if base is None or not self.sum_camera_photons > 0.0:

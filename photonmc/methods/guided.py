@@ -52,8 +52,9 @@ from .sppm import FIXED_ONE, Sppm
 from ..taichi_frontend import data_oriented
 
 REGENERATIONS = 10       # visible uniform proposals each chain should see per pass
-# ... at most: where so long a pass would need more camera paths per pixel than a pass allows,
-# the effort balance shortens it, down to this many (GuidedPhotons._balanced_pass_length).
+# ... at most: where the effort balance expects a shorter pass to serve the image much better
+# (the camera side carries the error, and its deposits grow with the pass), it shortens it,
+# down to this many (GuidedPhotons._balanced_pass_length).
 MIN_REGENERATIONS = 1
 PASS_LENGTH_CANDIDATES = 48
 B_MEMORY = 0.9           # the visible share that sizes a balanced pass: each pass's counts fade by this
@@ -136,9 +137,10 @@ class GuidedPhotons(Sppm):
                # docs/guiding.md "Uniform passes where the chains do not pay"); off: chain passes only.
                "uniform_passes": "auto",
                # balanced: a pass lasts REGENERATIONS visible uniform proposals per chain, or
-               # fewer (down to MIN_REGENERATIONS) where the effort balance would want more
-               # camera paths per pixel than a pass allows (_balanced_pass_length);
-               # regenerations: always REGENERATIONS.
+               # fewer (down to MIN_REGENERATIONS) where the effort balance expects a shorter
+               # pass to serve the image much better (_balanced_pass_length; docs/guiding.md,
+               # "Guided passes as long as the camera side allows"); regenerations: always
+               # REGENERATIONS.
                "pass_length": "balanced",
                # API only, for measurements: the visible uniform proposals a pass asks of each chain.
                "regenerations": REGENERATIONS}
