@@ -87,6 +87,8 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "floor-well": ("../tools/heldout/floor-well.xml", "../../tools/heldout/floor-well-64.exr", {"res": "64"}),
           # Made after stop 63's measurements, for issue 13 (light subpaths rarely contribute).
           "pinhole-bay": ("../tools/heldout/pinhole-bay.xml", "../../tools/heldout/pinhole-bay-64.exr", {"res": "64"}),
+          "ceiling-pinhole": ("../tools/heldout/ceiling-pinhole.xml", "../../tools/heldout/ceiling-pinhole-64.exr",
+                              {"res": "64"}),
           # Made after stop 56's measurements.
           "pantry-vent": ("../tools/heldout/pantry-vent.xml", "../../tools/heldout/pantry-vent-64.exr", {"res": "64"}),
           # Rooms of mbe's suite (tools/mbe_suite.sh), for A/B runs of vcm's and mbe's options.
