@@ -203,11 +203,11 @@ def _add_vcm_options(parser):
                         "pay for their work, both counted as the render goes; off: chain passes only "
                         "(docs/guiding.md, 'Uniform passes where the chains do not pay')")
     g.add_argument("--pass-length", choices=["balanced", "regenerations"],
-                   help="visibility, spatial-tf: balanced (default) makes a chain pass last until each chain "
-                        "has met up to 10 visible uniform proposals, fewer (down to 1) where the effort balance "
-                        "says the camera side gains more from shorter passes than the chains lose; "
-                        "regenerations: always 10 (docs/guiding.md, 'Guided passes as long as the camera side "
-                        "allows')")
+                   help="visibility, spatial-tf, mbe: balanced (default) makes a chain pass last until each "
+                        "chain has met up to 10 visible uniform proposals (mbe: 16), fewer (down to 1) where the "
+                        "effort balance says the camera side gains more from shorter passes than the chains "
+                        "lose; regenerations: always 10 (mbe: 16) (docs/guiding.md, 'Guided passes as long as "
+                        "the camera side allows'; docs/mbe.md, 'Chain passes as long as the camera side allows')")
     g.add_argument("--vcm-passes", choices=["auto", "measured", "off"],
                    help="mbe: measured (default) makes a pass a vcm pass (independent light subpaths, no "
                         "chains) where both kinds' measured variance per pass x work says it removes more error "

@@ -35,7 +35,8 @@ FORMAT = "photonmc-render-state"
 # 5: ... only where they are frozen (`--spatial-updates epochs`): three statistics otherwise
 # 6: the guided methods' pass-length state (visible counts, recorded shares) and the effort
 #    balance's shared photon variance (stop 65)
-FORMAT_VERSION = 6
+# 7: the pass-length state moved into methods/pass_length.py's BalancedPassLength, which mbe keeps too
+FORMAT_VERSION = 7
 SCALARS = (bool, int, float, str, type(None))
 SKIPPED = ("dscene", "settings", "options")       # given by the job, not computed
 SPARSE_MIN_BYTES = 1 << 20

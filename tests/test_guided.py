@@ -349,7 +349,7 @@ def test_guided_methods_match_sppm_and_mitsuba_on_every_bundled_scene(name, ref_
 def test_recorded_share_of_a_pass_matches_a_simulation():
     """guided.recorded_share: a ladder records from its first visible uniform proposal (a
     geometric step) and after its burn-in share, simulated here step by step."""
-    from photonmc.methods.guided import recorded_share
+    from photonmc.methods.pass_length import recorded_share
     rng = np.random.default_rng(3)
     steps, chains = 2000, 20000
     for b, burn_in in ((0.0005, 0.0), (0.002, 0.0), (0.005, 0.0), (0.002, 0.5)):
@@ -363,7 +363,8 @@ def test_balanced_pass_length_stays_within_its_regenerations():
     """--pass-length balanced (the default) sizes a pass between MIN_REGENERATIONS and
     REGENERATIONS visible uniform proposals per chain, by the visible share its passes'
     fading counts give; regenerations keeps REGENERATIONS. Bad values are refused."""
-    from photonmc.methods.guided import MIN_REGENERATIONS, REGENERATIONS
+    from photonmc.methods.guided import REGENERATIONS
+    from photonmc.methods.pass_length import MIN_REGENERATIONS
     for options in ({}, {"pass_length": "regenerations"}):
         p = prepare(str(SCENES / "attic-slit" / "scene.xml"), "visibility", params={"res": "16"}, seed=1,
                     options=options)

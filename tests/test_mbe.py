@@ -709,6 +709,38 @@ def _after_iterations(name, res, iterations, read, seed=1):
         p.release()
 
 
+def test_balanced_chain_passes_stay_within_their_regenerations():
+    """--pass-length balanced (the default) sizes a chain pass between MIN_REGENERATIONS and
+    REGENERATIONS visible uniform proposals per ladder (at the passes' fading visible share),
+    and takes the fewest while the effort balance has no camera-side variance to go by; with
+    `regenerations` every pass the rule sizes is REGENERATIONS long. The held-out pinhole bay
+    at 16x16 (light through a 4 cm hole; about 10 % of light subpaths contribute at this
+    resolution, so the rule sets the length): its first passes are shortened, before the
+    camera side's variance is measured (negative at first), and then the balance keeps the
+    longest, K being free to follow it (it rises to 4-10)."""
+    from photonmc.methods.mbe import REGENERATIONS
+    from photonmc.methods.pass_length import MIN_REGENERATIONS
+    for options in ({}, {"pass_length": "regenerations"}):
+        p = prepare(load_scene(SCENES.parent / "tools" / "heldout" / "pinhole-bay.xml", {"res": 16}), method="mbe",
+                    seed=1, options={"vcm_passes": "off", **options})
+        try:
+            m = p.method
+            shortened = 0
+            for _ in range(30):
+                m.iterate()
+                assert m.steps_last <= m.regeneration_steps
+                if m.steps_last < m.regeneration_steps:
+                    shortened += 1
+                    assert options == {} and m.planned_regenerations >= MIN_REGENERATIONS * 0.999
+                elif m.steps_last > m.n_light * m.chain_bias.factor and m.b_last[0] > 0:
+                    assert m.planned_regenerations == pytest.approx(REGENERATIONS, rel=0.2)
+            stats = m.stats()
+            assert stats["pass_length"] == options.get("pass_length", "balanced")
+            assert (shortened > 0) == (options == {}), shortened
+        finally:
+            p.release()
+
+
 def test_uniform_weight_follows_where_light_subpaths_contribute():
     """beta, the uniform proposals' share of the light side, is chosen from the measured
     variances: high where most light subpaths contribute (mesh-room, b_V 0.65: the chains'
@@ -878,7 +910,7 @@ def test_seed_determinism_after_another_scene(write_scene):
     ({"camera_paths": "auto", "chains": 1}, "--chains 2 or more"), ({"balance": "l2"}, "--balance"),
     ({"uniform_weight": 1.5}, "--uniform-weight"), ({"uniform_weight": "most"}, "--uniform-weight"),
     ({"uniform_weight": True}, "--uniform-weight"), ({"vcm_passes": "sometimes"}, "--vcm-passes"),
-    ({"film_weights": "optimal"}, "--film-weights"),
+    ({"film_weights": "optimal"}, "--film-weights"), ({"pass_length": "short"}, "--pass-length"),
 ])
 def test_bad_options(options, message):
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 8})

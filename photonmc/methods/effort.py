@@ -336,6 +336,10 @@ class EffortBalance:
         if base is None or not self.sum_camera_photons > 0.0:
             return None
         v_c, v_p, rays, photon_work = base
+        # A negative V_c (the pairs' difference, noisy while the photon side dominates them) is
+        # no camera-side error measured: scored as such, not as a negative one, which made every
+        # candidate's error negative and the longest look best by its sign alone.
+        v_c = max(v_c, 0.0)
         deposit_work = DEPOSIT_WORK * self.sum_deposits / self.sum_camera_photons
         shared = math.fsum(self.shared_variances) / len(self.shared_variances) if self.shared_variances else 0.0
         camera_work_now = rays + deposit_work * steps_now

@@ -46,7 +46,8 @@ from ..kernels.photon import BOUNCE_DIMS, LIGHT_DIMS, dimensions, photon_segment
 from ..kernels.pss_guide import PAIRS, PssGuide
 from ..kernels.sampling import luminance
 from .clusters import UNKNOWN, HitDensityClusters
-from .effort import HISTORY, UniformWeight, uniform_weight_option
+from .effort import UniformWeight, uniform_weight_option
+from .pass_length import MIN_REGENERATIONS, BalancedPassLength, recorded_share
 from .photon_passes import PhotonPassChoice
 from .sppm import FIXED_ONE, Sppm
 from ..taichi_frontend import data_oriented
@@ -54,10 +55,7 @@ from ..taichi_frontend import data_oriented
 REGENERATIONS = 10       # visible uniform proposals each chain should see per pass
 # ... at most: where the effort balance expects a shorter pass to serve the image much better
 # (the camera side carries the error, and its deposits grow with the pass), it shortens it,
-# down to this many (GuidedPhotons._balanced_pass_length).
-MIN_REGENERATIONS = 1
-PASS_LENGTH_CANDIDATES = 48
-B_MEMORY = 0.9           # the visible share that sizes a balanced pass: each pass's counts fade by this
+# down to MIN_REGENERATIONS (methods/pass_length.py, GuidedPhotons._balanced_pass_length).
 MAX_STEPS_PER_PASS = 1 << 24
 # A ladder's upper levels start each pass as copies of level 0's state and burn in within the
 # pass; the exchanges pass their states down to level 0 too, so no level is exact until the
@@ -88,16 +86,6 @@ MIN_MUTATION = 0.05
 # Vertex lists (GuidedPhotons.trace): each state keeps its path's photon vertices, so that it
 # deposits without being traced again; at most this many vertices over all lists, else traced.
 VERTEX_BUDGET = 1 << 21
-
-
-def recorded_share(regenerations, burn_in: float):
-    """The expected share of a pass's steps that a ladder records, where it expects
-    `regenerations` visible uniform proposals in the pass (R = b x its steps): it records from
-    its first one (an exact draw from the pass's target: ChainPool.run_pass), whose step is
-    near exponential with rate b, and only after the burn-in share beta, so
-    f = (1 - beta) - (e^(-beta R) - e^(-R)) / R  (beta 0: 1 - (1 - e^(-R)) / R)."""
-    r = np.maximum(np.asarray(regenerations, float), 1e-12)
-    return (1.0 - burn_in) - (np.exp(-burn_in * r) - np.exp(-r)) / r
 
 
 @ti.func
@@ -317,12 +305,11 @@ class GuidedPhotons(Sppm):
         self.uniform_pass = False       # whether the pass being made is a uniform pass
         self.previous_uniform = False   # and the one before it
         self.chain_passes = 0
-        self.inverse_shares = []        # 1 / the recorded share of the last HISTORY passes
+        self.pass_length = BalancedPassLength()     # the visible counts and recorded shares it goes by
         self.recorded_share_last = None
         self.planned_regenerations = 0.0
         self.regeneration_steps = self.photons_per_iteration
         self.b_pass = 0.0               # this pass's visible share of uniform proposals
-        self.visible_counts = np.zeros(2)     # visible and all uniform proposals, fading by B_MEMORY
 
     # -- the model interface of ChainPool -------------------------------------------------
     @ti.func
@@ -557,7 +544,7 @@ class GuidedPhotons(Sppm):
         b = self.pool.normalisations(tallies)
         self.b_pass = float(b[0])
         c = tallies["counters"][0]
-        self.visible_counts = B_MEMORY * self.visible_counts + (float(c[UNIFORM_VISIBLE]), float(c[UNIFORM]))
+        self.pass_length.observe_counts(c[UNIFORM_VISIBLE], c[UNIFORM])
         recorded = tallies["recorded"]
         self.recorded_share_last = float(recorded[0]) / n_p      # against _recorded_share's model (stats)
         scale = np.where(recorded > 0, b * n_p / np.maximum(recorded, 1e-300), 0.0)
@@ -672,12 +659,12 @@ class GuidedPhotons(Sppm):
             want = self.last_steps * 2 if b0 <= 0 else math.ceil(self.regenerations / b0) * self.n_chains
             n = max(n, min(int(want), MAX_STEPS_PER_PASS))
             longest = n
-            if self.balanced_length and self.visible_counts[0] > 0 and n > floor:
+            if self.balanced_length and self.pass_length.visible_share() > 0 and n > floor:
                 # A pass of few regenerations sees few visible uniform proposals: its own b is
                 # too noisy to size a shorter one; the fading counts are steadier. (The longest
                 # keeps the last pass's b, as with --pass-length regenerations: the smoothed b
                 # there lost the doorway 7 %, docs/guiding.md.)
-                b0 = self.visible_counts[0] / self.visible_counts[1]
+                b0 = self.pass_length.visible_share()
                 shorter = self._balanced_pass_length(n, floor, b0)
                 if shorter < n:
                     n, b_sized = shorter, b0
@@ -688,8 +675,7 @@ class GuidedPhotons(Sppm):
         # The balance's V_p is a mean over passes of their variance per step, which goes as
         # 1 / the share recorded: the shares' harmonic mean is the one it was measured at.
         share = float(self._recorded_share([n], b0)[0]) if b0 > 0 and not self.uniform_pass else 1.0
-        self.inverse_shares.append(1.0 / max(share, 1e-6))
-        del self.inverse_shares[:-HISTORY]
+        self.pass_length.record(share)
         return n
 
     def _recorded_share(self, lengths, b0: float):
@@ -704,13 +690,8 @@ class GuidedPhotons(Sppm):
         passes and loses more of its chains' first steps (docs/guiding.md, "Guided passes as
         long as the camera side allows")."""
         shortest = max(floor, min(longest, math.ceil(min(MIN_REGENERATIONS, self.regenerations) / b0) * self.n_chains))
-        if shortest >= longest or not self.inverse_shares:
-            return longest
-        lengths = np.unique(np.geomspace(shortest, longest, PASS_LENGTH_CANDIDATES).astype(np.int64))
-        efficiency_now = len(self.inverse_shares) / math.fsum(self.inverse_shares)
-        best = self.effort.chain_pass_length(lengths, self._recorded_share(lengths, b0), efficiency_now,
-                                             self.last_steps, self.camera_paths, self.max_camera_paths)
-        return longest if best is None else best
+        return self.pass_length.choose(self.effort, shortest, longest, lambda lengths: self._recorded_share(lengths, b0),
+                                       self.last_steps, self.camera_paths, self.max_camera_paths)
 
     def _prepare_targets(self):
         """Per-MP target factors for levels above visibility (none for `visibility`)."""

@@ -90,6 +90,7 @@ from .film_weights import count_weights, film_weights, shrunk_log_ratio
 from .guided import LADDER_BURN_IN
 from .light_balance import LightPathBalance
 from .pass_choice import BatchMeansVariance, PassChoice, TwinVariance
+from .pass_length import MIN_REGENERATIONS, BalancedPassLength, recorded_share
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 from ..taichi_frontend import data_oriented
 
@@ -131,6 +132,9 @@ class _ChainModel:
 # rare; 4 keep 2-4 CPU threads busy (the guided photon methods' choice, methods/guided.py).
 DEFAULT_CHAINS = 4
 REGENERATIONS = 16     # visible uniform proposals each ladder should meet per pass
+# ... at most: with --pass-length balanced (the default) the effort balance shortens a chain
+# pass toward MIN_REGENERATIONS where the camera side carries the error (methods/pass_length.py;
+# docs/mbe.md, "Chain passes as long as the camera side allows").
 MAX_PASS_FACTOR = 64   # a pass takes at most this many times --light-paths chain steps
 MAX_CHAINS = 1 << 16
 # One proposal per chain step, a uniform one (large step) with this probability: the value of
@@ -179,7 +183,7 @@ class Mbe(Vcm):
                "radius_rule": "balanced", "chains": None, "target_acceptance": 0.234, "mis": "plain", "large_step": LARGE_STEP,
                "base_in_burn_in": True, "camera_paths": "auto", "warm_start": True,
                "balance": "mse", "uniform_weight": "auto", "vcm_passes": "measured", "film_weights": "variance",
-               "pixel_samples": "sobol"}
+               "pixel_samples": "sobol", "pass_length": "balanced"}
     # The camera vertices live for one iteration; the chain model is bound to their store.
     TRANSIENT = ("store", "grid", "chain_model", "_models")
     n_levels = 2
@@ -220,6 +224,10 @@ class Mbe(Vcm):
         self.large_step = float(opts["large_step"])
         if not 0.0 <= self.large_step < 1.0:
             raise SettingsError(f"--large-step must be in [0, 1), got {self.large_step}")
+        if opts["pass_length"] not in ("balanced", "regenerations"):
+            raise SettingsError(f"--pass-length must be 'balanced' or 'regenerations', got '{opts['pass_length']}'")
+        # The choice reads K = n / n* from the balance, so only where the balance chooses K.
+        self.balanced_length = opts["pass_length"] == "balanced" and self.camera_paths_auto
         self.pool = ChainPool(self.n_chains, self.n_levels, self.pair_dim + 1, seeding="resample",
                               bootstrap=BOOTSTRAP_FRACTION, bootstrap_hits=BOOTSTRAP_HITS,
                               burn_in=LADDER_BURN_IN, large_step=self.large_step,
@@ -368,6 +376,9 @@ class Mbe(Vcm):
         self.b_mis_host = start.astype(np.float32)
         self.steps_last = self.n_light
         self.steps_sum = 0
+        self.pass_length = BalancedPassLength()     # the visible counts and recorded shares it goes by
+        self.regeneration_steps = self.n_light     # the length the regeneration rule asked for (stats)
+        self.planned_regenerations = 0.0           # visible uniform proposals per ladder the pass was sized for
         self.camera_paths_traced = 0        # camera subpaths per pixel so far: the radius's index
         # Each kind's passes (exploring ones included) in the pixels' sequences, one pair of
         # sequences per kind (kernels/pixel_samples.py)
@@ -384,22 +395,69 @@ class Mbe(Vcm):
         """--light-paths chain steps (times ChainBias's factor, which doubles where the chains'
         start-up bias outweighs the film's noise), more where the last pass's visible fraction
         b_V would leave a ladder fewer than REGENERATIONS visible uniform proposals (twice the last
-        length after a pass that found none), at most MAX_PASS_FACTOR x --light-paths. The
-        pass's light subpath count N_L is this length: the MIS counts and normalisations
-        follow it. (A pass that grew toward the balance's n* where K is 1 ran away on the
-        caustic: 4096 -> 45k steps, RMSE 2.6x: V_p N_L grows with N_L, chains' records being
-        correlated over a pass, and the radius, shrinking per pass, stayed large; a pass that
-        shrank toward n* where the camera side dominates helped the caustic and the Cornell
-        box and lost 4-13 % in four gap-lit rooms; docs/mbe.md.)"""
+        length after a pass that found none), at most MAX_PASS_FACTOR x --light-paths. With
+        --pass-length balanced the effort balance then shortens that, down to MIN_REGENERATIONS
+        per ladder, where it expects a shorter pass to serve the image better
+        (_balanced_pass_length). The pass's light subpath count N_L is this length: the MIS
+        counts and normalisations follow it. (A pass that grew toward the balance's n* where K
+        is 1 ran away on the caustic: 4096 -> 45k steps, RMSE 2.6x: V_p N_L grows with N_L,
+        chains' records being correlated over a pass, and the radius, shrinking per pass,
+        stayed large; a pass that shrank toward n* below --light-paths where the camera side
+        dominates helped the caustic and the Cornell box and lost 4-13 % in four gap-lit rooms;
+        docs/mbe.md.)"""
         n = min(self.n_light * self.chain_bias.factor, MAX_PASS_FACTOR * self.n_light)
+        floor = n
+        longest = n
+        b_sized = 0.0
         if self.iterations > 0:
-            b0 = self.b_last[0]
-            uniform_per_step = self.pool.large_step if self.pool.large_step > 0 else 1.0
-            want = self.steps_last * 2 if b0 <= 0 else math.ceil(REGENERATIONS / (b0 * uniform_per_step)) * self.n_chains
+            b0 = b_sized = self.b_last[0]
+            want = self.steps_last * 2 if b0 <= 0 else \
+                math.ceil(REGENERATIONS / (b0 * self._uniform_per_step())) * self.n_chains
             n = max(n, min(int(want), MAX_PASS_FACTOR * self.n_light))
+            longest = n
+            b_fading = self.pass_length.visible_share()
+            if self.balanced_length and b_fading > 0 and n > floor:
+                shorter = self._balanced_pass_length(n, floor, b_fading)
+                if shorter < n:
+                    n, b_sized = shorter, b_fading
+        self.regeneration_steps = longest
+        self.planned_regenerations = b_sized * self._uniform_per_step() * n / self.n_chains
+        self.pass_length.record(float(self._recorded_share([n], b_sized)[0]) if b_sized > 0 else 1.0)
         self.steps_last = n
         self.steps_sum += n
         return n
+
+    def _uniform_per_step(self) -> float:
+        """Uniform proposals per chain step: the large-step probability (every step with 0)."""
+        return self.pool.large_step if self.pool.large_step > 0 else 1.0
+
+    def _recorded_share(self, lengths, b0: float):
+        """pass_length.recorded_share for chain passes of `lengths` steps: the visibility chain
+        records from its first visible uniform proposal of the pass (through the contribution
+        chain's burn-in: base_in_burn_in, the default), and the light side's variance per step
+        is taken to follow its records."""
+        regenerations = np.asarray(lengths, float) * b0 * self._uniform_per_step() / self.n_chains
+        return recorded_share(regenerations, 0.0 if self.pool.base_records_in_burn_in else self.pool.burn_in)
+
+    def _balanced_pass_length(self, longest: int, floor: int, b0: float) -> int:
+        """The chain pass length between MIN_REGENERATIONS and REGENERATIONS visible uniform
+        proposals per ladder (`longest`) that the effort balance expects to serve the image
+        best (EffortBalance.chain_pass_length, as for the guided photon methods): where the
+        camera side carries the error and K cannot rise to match a long pass (it is held at
+        its most, or the merge candidates of a camera subpath grow with the pass), a shorter
+        pass makes more camera subpaths per second and loses more of its chains' first steps
+        (docs/mbe.md, "Chain passes as long as the camera side allows")."""
+        shortest = max(floor, min(longest, math.ceil(MIN_REGENERATIONS / (b0 * self._uniform_per_step()))
+                                  * self.n_chains))
+        shares = self.effort.shares()
+        if shares is None or not shares[0] > 0.0:
+            # No camera-side variance measured yet: the shortest. The pass choice stops making
+            # chain passes once vcm passes measure better, and the few long ones made before the
+            # camera side could be measured judged the kind for the render (the pinhole bay: 5
+            # passes of 209k steps at K = 1, then vcm passes only; docs/mbe.md).
+            return shortest
+        return self.pass_length.choose(self.effort, shortest, longest, lambda lengths: self._recorded_share(lengths, b0),
+                                       self.steps_last, self.camera_paths, self.max_camera_paths)
 
     def _iterate(self):
         it = self.iteration_index
@@ -514,6 +572,7 @@ class Mbe(Vcm):
         self.vertices_sum += n
         tallies = self.pool.run_pass(self.chain_model, self.seed_u32, it, steps, extra=(self.light_counters,))
         b = self.pool.normalisations(tallies)
+        self.pass_length.observe_counts(tallies["counters"][0, UNIFORM_VISIBLE], tallies["counters"][0, UNIFORM])
         recorded = tallies["recorded"]
         scale = np.where(recorded > 0, b * steps / np.maximum(recorded, 1e-300), 0.0)
         # The light side: beta x the uniform proposals' estimate + (1 - beta) x the chains'.
@@ -1041,6 +1100,9 @@ class Mbe(Vcm):
         return {
             "light_paths_per_iteration": self.n_light, "chain_steps_last_iteration": self.steps_last,
             "chain_steps_mean": self.steps_sum / max(self.iterations, 1),
+            "pass_length": self.options["pass_length"],
+            "chain_steps_regeneration_rule_last": self.regeneration_steps,
+            "regenerations_per_chain_last": self.planned_regenerations,
             "camera_paths_per_pixel": self.camera_paths,
             "camera_paths_per_pixel_auto": self.camera_paths_auto,
             "uniform_weight": self.beta.value, "uniform_weight_auto": self.beta.auto,
