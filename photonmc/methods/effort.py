@@ -53,8 +53,9 @@ POSITION_EXPONENT = 1.5
 # closet: photon-pass time against segments and deposits; docs/effort.md).
 DEPOSIT_WORK = 1.5
 CANDIDATES = 512         # log-spaced candidates the bias-aware choice is searched over
-# chain_pass_length shortens a guided pass only where it expects at most this share of the
-# longest pass's error (docs/guiding.md, "Guided passes as long as the camera side allows").
+# chain_pass_length shortens a chain pass (the guided methods', mbe's) only where it expects at
+# most this share of the longest pass's error (docs/guiding.md, "Guided passes as long as the
+# camera side allows").
 PASS_LENGTH_MARGIN = 0.8
 
 
@@ -313,7 +314,8 @@ class EffortBalance:
 
     def chain_pass_length(self, lengths, efficiency, efficiency_now: float, steps_now: float,
                           camera_paths: int, most: int) -> int | None:
-        """The guided methods' pass length (chain steps) among `lengths`, each with the share
+        """A chain pass's length (chain steps; the guided photon methods' and mbe's, through
+        methods/pass_length.py) among `lengths`, each with the share
         `efficiency` of its steps that its chains record (those after a chain's first visible
         uniform proposal; the steps before it are lost, more of them the shorter the pass).
         Each candidate is scored as a render made of such passes throughout (_error_with_bias),
