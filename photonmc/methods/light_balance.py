@@ -119,7 +119,8 @@ class LightPathBalance:
             upper = self.sums[0] * self.sums[1]
             lower = self.sums[2] * self.sums[3]
             if upper + lower > 0.0:
-                self.last_ratio = lower / upper
+                # (stats only) a side that measured no variance at all: a dim room's first blocks
+                self.last_ratio = lower / upper if upper > 0.0 else math.inf
                 step = -0.5 if lower < upper else 0.5
                 self.reversals += int(step * self.last_step < 0.0)
                 self.last_step = step
