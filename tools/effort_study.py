@@ -89,6 +89,9 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "pinhole-bay": ("../tools/heldout/pinhole-bay.xml", "../../tools/heldout/pinhole-bay-64.exr", {"res": "64"}),
           "ceiling-pinhole": ("../tools/heldout/ceiling-pinhole.xml", "../../tools/heldout/ceiling-pinhole-64.exr",
                               {"res": "64"}),
+          # Made after stop 66's balanced chain pass length for mbe was set.
+          "wall-pinhole-closet": ("../tools/heldout/wall-pinhole-closet.xml",
+                                  "../../tools/heldout/wall-pinhole-closet-64.exr", {"res": "64"}),
           # Made after stop 56's measurements.
           "pantry-vent": ("../tools/heldout/pantry-vent.xml", "../../tools/heldout/pantry-vent-64.exr", {"res": "64"}),
           # Rooms of mbe's suite (tools/mbe_suite.sh), for A/B runs of vcm's and mbe's options.
