@@ -204,7 +204,7 @@ def _add_vcm_options(parser):
                         "(docs/guiding.md, 'Uniform passes where the chains do not pay')")
     g.add_argument("--pass-length", choices=["balanced", "regenerations"],
                    help="visibility, spatial-tf, mbe: balanced (default) makes a chain pass last until each "
-                        "chain has met up to 10 visible uniform proposals (mbe: 16), fewer (down to 1) where the "
+                        "chain has met up to 10 visible uniform proposals (mbe: 16), fewer (down to 1/4; mbe: 1) where the "
                         "effort balance says the camera side gains more from shorter passes than the chains "
                         "lose; regenerations: always 10 (mbe: 16) (docs/guiding.md, 'Guided passes as long as "
                         "the camera side allows'; docs/mbe.md, 'Chain passes as long as the camera side allows')")

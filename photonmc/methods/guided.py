@@ -47,7 +47,7 @@ from ..kernels.pss_guide import PAIRS, PssGuide
 from ..kernels.sampling import luminance
 from .clusters import UNKNOWN, HitDensityClusters
 from .effort import UniformWeight, uniform_weight_option
-from .pass_length import MIN_REGENERATIONS, BalancedPassLength, recorded_share
+from .pass_length import BalancedPassLength, recorded_share
 from .photon_passes import PhotonPassChoice
 from .sppm import FIXED_ONE, Sppm
 from ..taichi_frontend import data_oriented
@@ -56,6 +56,13 @@ REGENERATIONS = 10       # visible uniform proposals each chain should see per p
 # ... at most: where the effort balance expects a shorter pass to serve the image much better
 # (the camera side carries the error, and its deposits grow with the pass), it shortens it,
 # down to MIN_REGENERATIONS (methods/pass_length.py, GuidedPhotons._balanced_pass_length).
+# Below one a pass expects most chains to meet no visible uniform proposal, and records only
+# those that do (recorded_share models it); the balance goes there where the camera side
+# starves, as in the pinhole rooms, where spatial-tf's passes at one regeneration each still
+# held K at its most (64). With 1/4 at 20 s: spatial-tf 0.77x and 0.84x in the two pinhole
+# rooms, 1.11x in two-gap (21 passes), 0.98-1.01x in six more; visibility 0.97-1.07x over ten
+# rooms (docs/guiding.md, "Passes shorter than one regeneration", stop 67).
+MIN_REGENERATIONS = 0.25
 MAX_STEPS_PER_PASS = 1 << 24
 # A ladder's upper levels start each pass as copies of level 0's state and burn in within the
 # pass; the exchanges pass their states down to level 0 too, so no level is exact until the

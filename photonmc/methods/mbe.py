@@ -90,7 +90,7 @@ from .film_weights import count_weights, film_weights, shrunk_log_ratio
 from .guided import LADDER_BURN_IN
 from .light_balance import LightPathBalance
 from .pass_choice import BatchMeansVariance, PassChoice, TwinVariance
-from .pass_length import MIN_REGENERATIONS, BalancedPassLength, recorded_share
+from .pass_length import BalancedPassLength, recorded_share
 from .vcm import DEFAULT_RADIUS_PIXELS, PI, Vcm
 from ..taichi_frontend import data_oriented
 
@@ -134,7 +134,10 @@ DEFAULT_CHAINS = 4
 REGENERATIONS = 16     # visible uniform proposals each ladder should meet per pass
 # ... at most: with --pass-length balanced (the default) the effort balance shortens a chain
 # pass toward MIN_REGENERATIONS where the camera side carries the error (methods/pass_length.py;
-# docs/mbe.md, "Chain passes as long as the camera side allows").
+# docs/mbe.md, "Chain passes as long as the camera side allows"). The guided photon methods go
+# down to 1/4 (methods/guided.py); for mbe that was mixed at 20 s (pinhole bay 0.96x, ceiling
+# pinhole 1.10x, two-gap 0.99x, light bay 1.00x; docs/mbe.md, stop 67), so it keeps one.
+MIN_REGENERATIONS = 1
 MAX_PASS_FACTOR = 64   # a pass takes at most this many times --light-paths chain steps
 MAX_CHAINS = 1 << 16
 # One proposal per chain step, a uniform one (large step) with this probability: the value of

@@ -1,5 +1,6 @@
-"""A chain pass's length between one and a few tens of visible uniform proposals per chain,
-chosen by the effort balance (EffortBalance.chain_pass_length). Shared by the guided photon
+"""A chain pass's length between a few tens of visible uniform proposals per chain and the
+fewest each method allows (MIN_REGENERATIONS: a quarter for the guided photon methods, one for
+mbe), chosen by the effort balance (EffortBalance.chain_pass_length). Shared by the guided photon
 methods (docs/guiding.md, "Guided passes as long as the camera side allows") and mbe's chain
 passes (docs/mbe.md, "Chain passes as long as the camera side allows").
 
@@ -17,7 +18,6 @@ import numpy as np
 
 from .effort import HISTORY
 
-MIN_REGENERATIONS = 1     # the fewest visible uniform proposals per chain a pass may be sized for
 CANDIDATES = 48           # lengths scored between the fewest and the regeneration rule's
 B_MEMORY = 0.9            # the visible share that sizes a shortened pass: each pass's counts fade by this
 
