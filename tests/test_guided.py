@@ -363,8 +363,7 @@ def test_balanced_pass_length_stays_within_its_regenerations():
     """--pass-length balanced (the default) sizes a pass between MIN_REGENERATIONS and
     REGENERATIONS visible uniform proposals per chain, by the visible share its passes'
     fading counts give; regenerations keeps REGENERATIONS. Bad values are refused."""
-    from photonmc.methods.guided import REGENERATIONS
-    from photonmc.methods.guided import MIN_REGENERATIONS
+    from photonmc.methods.guided import MIN_REGENERATIONS, REGENERATIONS
     for options in ({}, {"pass_length": "regenerations"}):
         p = prepare(str(SCENES / "attic-slit" / "scene.xml"), "visibility", params={"res": "16"}, seed=1,
                     options=options)

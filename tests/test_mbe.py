@@ -718,8 +718,7 @@ def test_balanced_chain_passes_stay_within_their_regenerations():
     resolution, so the rule sets the length): its first passes are shortened, before the
     camera side's variance is measured (negative at first), and then the balance keeps the
     longest, K being free to follow it (it rises to 4-10)."""
-    from photonmc.methods.mbe import REGENERATIONS
-    from photonmc.methods.mbe import MIN_REGENERATIONS
+    from photonmc.methods.mbe import MIN_REGENERATIONS, REGENERATIONS
     for options in ({}, {"pass_length": "regenerations"}):
         p = prepare(load_scene(SCENES.parent / "tools" / "heldout" / "pinhole-bay.xml", {"res": 16}), method="mbe",
                     seed=1, options={"vcm_passes": "off", **options})

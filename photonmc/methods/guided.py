@@ -60,8 +60,10 @@ REGENERATIONS = 10       # visible uniform proposals each chain should see per p
 # those that do (recorded_share models it); the balance goes there where the camera side
 # starves, as in the pinhole rooms, where spatial-tf's passes at one regeneration each still
 # held K at its most (64). With 1/4 at 20 s: spatial-tf 0.77x and 0.84x in the two pinhole
-# rooms, 1.11x in two-gap (21 passes), 0.98-1.01x in six more; visibility 0.97-1.07x over ten
-# rooms (docs/guiding.md, "Passes shorter than one regeneration", stop 67).
+# rooms, 1.11x in two-gap (21 passes; at 60 s 0.57x sppm, as before), 0.98-1.01x in six
+# more; visibility 0.97-1.07x over ten rooms; at 60 s spatial-tf 0.94x -> 0.75x and
+# 1.10x -> 0.83x sppm's RMSE in the pinhole rooms (docs/guiding.md, "Passes shorter than one
+# regeneration", stop 67).
 MIN_REGENERATIONS = 0.25
 MAX_STEPS_PER_PASS = 1 << 24
 # A ladder's upper levels start each pass as copies of level 0's state and burn in within the
