@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--alpha", type=float)
     c.add_argument("--radius", type=float)
     c.add_argument("--radius-rule", choices=["progressive", "balanced"])
-    c.add_argument("--disc", choices=["full", "clipped", "linear"])
+    c.add_argument("--disc", choices=["full", "clipped", "linear", "sealed"])
     _add_guiding_options(c)
     _add_vcm_options(c)
     c.add_argument("-D", dest="defines", action="append", type=_define, default=[], metavar="NAME=VALUE")
@@ -120,11 +120,12 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
                     help="progressive: the radius shrinks by alpha's rule; balanced (the default): it shrinks "
                          "faster while the radius bias, measured against discs of half the area, outweighs "
                          "what a smaller radius adds in noise (docs/vcm.md, docs/guiding.md)")
-    pm.add_argument("--disc", choices=["full", "clipped", "linear"],
+    pm.add_argument("--disc", choices=["full", "clipped", "linear", "sealed"],
                     help="sppm, visibility, spatial-tf: full divides a point's photons by its whole disc; clipped "
                          "by the part of the disc on its surface, found with rays (no dark edges; docs/guiding.md, "
                          "\"Discs that overhang an edge\"); linear: clipped, its photons weighted so that a "
-                         "density linear across the disc is read at its centre")
+                         "density linear across the disc is read at its centre; sealed: the whole disc, counting only "
+                         "the photons on the point's side of a wall (no light leaking through thin walls)")
     _add_guiding_options(r)
     _add_vcm_options(r)
     d = r.add_argument_group("several processes or machines (needs photonmc[distributed], i.e. Ray)")

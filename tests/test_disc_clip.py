@@ -9,7 +9,8 @@ import taichi as ti
 from photonmc import load_scene
 from photonmc.imageio import read_image
 from photonmc.kernels.device_scene import DeviceScene
-from photonmc.kernels.disc_clip import DIRECTIONS, REL_PRECISION, SHARE_MIN, disc_linear_fits, disc_shares, in_region
+from photonmc.kernels.disc_clip import (DIRECTIONS, REL_PRECISION, SHARE_MIN, disc_linear_fits, disc_shares,
+                                        behind_wall, disc_walls, in_region)
 from photonmc.kernels.sampling import onb
 from photonmc.loop import Budget, prepare, run
 from photonmc.metrics import downsample, luminance
@@ -49,13 +50,14 @@ def probed(tmp_path_factory):
     """For each of POINTS: the clipped shares (full, inner) and the linear fits (share, slope,
     share of the inner disc), from one kernel; then the same shares probed again knowing the
     floor's triangle under the point, with the probes' shortcuts (_over_own_triangle,
-    _near_triangles)."""
+    _near_triangles); then whether --disc sealed (disc_walls) counts the three
+    photons the linear region is asked about."""
     path = tmp_path_factory.mktemp("disc") / "scene.xml"
     path.write_text(f'<scene version="3.0.0">{FLOOR_AND_WALL}</scene>')
     dscene = DeviceScene(load_scene(path))
     n = len(POINTS)
     points = np.array([c[0] for c in POINTS], np.float32)
-    out = ti.ndarray(ti.f32, (n, 14))
+    out = ti.ndarray(ti.f32, (n, 17))
 
     @ti.kernel
     def probe(points: ti.types.ndarray(), out: ti.types.ndarray()):
@@ -75,6 +77,10 @@ def probed(tmp_path_factory):
             tri = dscene.trace(p + 0.01 * up, -up, 0.02, False).prim
             out[i, 10], out[i, 11] = disc_shares(dscene, p, up, R, tri, True)
             out[i, 12], _slope2, out[i, 13], _slope_inner2, _ends2 = disc_linear_fits(dscene, p, up, R, tri, True)
+            sealed = disc_walls(dscene, p, up, R)
+            for c, offset in ti.static(enumerate(((0.5, 0.0, 0.0), (-0.5, 0.0, 0.0), (0.0, 0.0, 0.5)))):
+                o = ti.Vector(offset)
+                out[i, 14 + c] = 1 - behind_wall(sealed, o.dot(t1), o.dot(t2))
 
     probe(points, out)
     return out.to_numpy()
@@ -109,6 +115,17 @@ def test_the_gather_of_a_fitted_disc_stops_at_a_wall(probed):
     assert list(wall[7:10]) == [0, 1, 1]
 
 
+def test_a_sealed_disc_stops_at_a_wall_and_nowhere_else(probed):
+    """--disc sealed: the photon behind the wall (leaked light on the same plane) is dropped as
+    the linear region drops it, but an open edge cuts nothing (the disc keeps its whole area
+    and every photon the plain gather counts there)."""
+    clear, edge, wall = probed[0], probed[2], probed[4]      # the open edge at R / 5 along -x
+    assert list(clear[14:17]) == [1, 1, 1]
+    assert list(wall[14:17]) == [0, 1, 1]
+    assert list(edge[14:17]) == [1, 1, 1]
+    assert list(edge[7:10]) == [1, 0, 1]       # where the linear region stops at the edge
+
+
 def test_a_linear_fit_reads_a_density_linear_across_a_cut_disc_at_its_centre(probed):
     """A density rising steeply across the disc (by 3x its value over R) toward and along the
     edge: the photons that land in the cut disc, each weighted 1 + slope . (x - p) and divided
@@ -139,11 +156,12 @@ def test_a_linear_fit_reads_a_density_linear_across_a_cut_disc_at_its_centre(pro
 def test_clipped_discs_take_the_dark_edges_out_of_the_cornell_box():
     """sppm at a large fixed radius (0.25 in a 2 m box) is dark along every edge and corner of
     the box with full discs; clipped, its mean agrees with the Mitsuba reference. The same
-    photons, so the difference is the discs' areas alone."""
+    photons, so the difference is the discs' areas alone; sealed discs, which only drop the
+    photons across a wall, read what full ones read (no wall there has light behind it)."""
     scene = load_scene(SCENES / "cornell-box" / "scene.xml", {"res": 32})
     ref = luminance(downsample(read_image(REFS / "cornell-box-64.exr"), 2))
     means = {}
-    for disc in ("full", "clipped", "linear"):
+    for disc in ("full", "clipped", "linear", "sealed"):
         p = prepare(scene, method="sppm", seed=1, options={"alpha": 0.999, "radius_rule": "progressive",
                                                            "radius": 0.25, "photons": 65536, "disc": disc})
         r = run(p, Budget(iterations=40), quiet=True)
@@ -154,3 +172,5 @@ def test_clipped_discs_take_the_dark_edges_out_of_the_cornell_box():
     assert means["full"] < -0.014
     assert abs(means["clipped"]) < 0.008
     assert abs(means["linear"]) < 0.008
+    # sealed keeps the whole disc: nothing leaks through the box's walls, so it is as dark as full
+    assert abs(means["sealed"] - means["full"]) < 0.002

@@ -427,6 +427,79 @@ def disc_linear_fits(sc: ti.template(), p, n, R, tri, shortcuts: ti.template()):
     return share, slope, share_inner, slope_inner, packed
 
 
+# --disc sealed: per direction k, the wall its probe met, as (distance, turn) bytes: its hit's
+# distance in WALL_LEVELS steps of R (WALL_LEVELS: no wall), and the angle from direction k to
+# the wall's normal in the tangent plane, in [-pi/2, pi/2] over WALL_LEVELS steps. Two
+# directions to a u32, four u32 per MP.
+WALL_LEVELS = 255
+NO_WALLS = 0xFFFFFFFF
+WALL_COS_MAX = 0.5       # a wall's normal is within 60 degrees of the surface's tangent plane
+
+
+@ti.func
+def disc_walls(sc: ti.template(), p, n, R):
+    """`--disc sealed`: the walls that stand within R of p, one per probe direction (the wall
+    probes of _extent alone, no search for where the surface ends), packed for behind_wall.
+    A photon behind such a wall lands on the same plane, facing the same way (the floor or a
+    side wall running on under a partition into a lit room behind it), and the plain gather
+    counts it: light leaking through the wall (docs/guiding.md, "Light that leaks through a
+    partition"). Each wall is kept as a line (its hit and its normal), not joined to the next
+    direction's end as the linear region's edges are: in a room's corner two directions meet
+    two walls, and a line drawn between their ends would cut the corner off the disc."""
+    t1, t2 = onb(n)
+    lift, _, walls, near, count = _probe_setup(sc, p, n, R, -1, True)
+    packed = ti.Vector([ti.u32(NO_WALLS)] * 4)
+    if walls:
+        for k in range(DIRECTIONS):
+            angle, t = _direction(k, t1, t2)
+            o = p + n * lift
+            wall = _probe_ray(sc, near, count, o, t, R, False)
+            ng = ti.Vector([0.0, 0.0, 1.0])
+            if wall.kind >= 0:
+                ng = sc.surface(o, t, wall).ng
+            # a wall rises from the surface; what the probe meets facing mostly down onto it
+            # (the underside of a sphere resting on the floor) has the surface going on below it
+            if wall.kind >= 0 and ti.abs(ng.dot(n)) <= WALL_COS_MAX:
+                m = ti.Vector([ng.dot(t1), ng.dot(t2)])
+                turn = 0.0
+                if m.norm() > 1e-3:
+                    turn = ti.atan2(m.y, m.x) - angle        # the normal's angle from direction k
+                    turn -= 2.0 * math.pi * ti.round(turn / (2.0 * math.pi))
+                    if turn > 0.5 * math.pi:                 # the normal pointing away from p
+                        turn -= math.pi
+                    elif turn < -0.5 * math.pi:
+                        turn += math.pi
+                level = ti.cast(ti.min(ti.floor(wall.t / R * WALL_LEVELS), WALL_LEVELS - 1), ti.u32)
+                twist = ti.cast(ti.round((turn / math.pi + 0.5) * WALL_LEVELS), ti.u32)
+                half = (level | (twist << ti.u32(8))) << ti.u32(16 * (k % 2))
+                keep = ti.u32(0xFFFF) << ti.u32(16 * (1 - k % 2))
+                packed[k // 2] = (packed[k // 2] & keep) | half
+    return packed
+
+
+@ti.func
+def behind_wall(packed, offset_u, offset_v) -> ti.i32:
+    """Whether a photon at tangent-plane offset (u, v) from p (units of R) lies behind the wall
+    its direction's probe met (disc_walls): beyond the line through that hit, square to the
+    wall's normal."""
+    behind = 0
+    if packed[0] != ti.u32(NO_WALLS) or packed[1] != ti.u32(NO_WALLS) or \
+            packed[2] != ti.u32(NO_WALLS) or packed[3] != ti.u32(NO_WALLS):
+        step = 2.0 * math.pi / DIRECTIONS
+        angle = ti.atan2(offset_v, offset_u)
+        k = ti.cast(ti.floor(angle / step), ti.i32)          # the nearest direction, (k + 0.5) step
+        k = (k % DIRECTIONS + DIRECTIONS) % DIRECTIONS
+        half = (packed[k // 2] >> ti.u32(16 * (k % 2))) & ti.u32(0xFFFF)
+        level = half & ti.u32(0xFF)
+        if level != ti.u32(WALL_LEVELS):
+            rho = ti.cast(level, ti.f32) / WALL_LEVELS
+            turn = (ti.cast(half >> ti.u32(8), ti.f32) / WALL_LEVELS - 0.5) * math.pi
+            normal_angle = (k + 0.5) * step + turn
+            m = ti.Vector([ti.cos(normal_angle), ti.sin(normal_angle)])
+            behind = offset_u * m.x + offset_v * m.y > rho * ti.cos(turn)
+    return behind
+
+
 @ti.func
 def _region_fits(packed, t1, t2, R):
     """disc_linear_fits for a region cut by an edge: its moments integrated, then fitted."""

@@ -37,7 +37,8 @@ from ..kernels import pixel_samples, rng
 from ..kernels.camera_walk import STOP, THROUGHPUT_ROULETTE, camera_walk
 from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.direct import next_event
-from ..kernels.disc_clip import WHOLE_DISC, disc_linear_fits, disc_shares, in_region
+from ..kernels.disc_clip import (NO_WALLS, WHOLE_DISC, behind_wall, disc_linear_fits, disc_shares, disc_walls,
+                                 in_region)
 from ..kernels.batch import fill_fields
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import HashGrid
@@ -91,10 +92,13 @@ class Sppm(Method):
                # surface (kernels/disc_clip.py), which removes the dark bias of discs that
                # overhang an edge (docs/guiding.md, "Discs that overhang an edge"); linear: the
                # region the probes bound, its photons alone, weighted so that light linear
-               # across it is read at the MP (docs/guiding.md, "Discs fitted to their surface").
+               # across it is read at the MP (docs/guiding.md, "Discs fitted to their surface");
+               # sealed: the whole disc's area, without the photons behind a wall the probes
+               # find in it, so light leaking through a wall onto the same plane does not count
+               # (docs/guiding.md, "Light that leaks through a partition").
                "disc": "full"}
     RADIUS_RULES = ("progressive", "balanced")
-    DISCS = ("full", "clipped", "linear")
+    DISCS = ("full", "clipped", "linear", "sealed")
     default_camera_paths = 1      # what --camera-paths is when not given (guided: auto)
     # The twins' V_c estimates: their plain mean since the start (sppm: the caustic's rare
     # camera paths to the lamp through glass are error its photons cannot remove, and the
@@ -104,7 +108,7 @@ class Sppm(Method):
     # Rebuilt every iteration, so not saved in a render state (state.py): the grid and the
     # pass's measurement points with their per-pass accumulators (up to MP_BUDGET points).
     TRANSIENT = ("grid", "mp_p", "mp_n", "mp_wo", "mp_W", "mp_bsdf", "mp_depth", "mp_valid", "mp_radius",
-                 "mp_share", "mp_share_inner", "mp_tri", "mp_slope", "mp_slope_inner", "mp_ends",
+                 "mp_share", "mp_share_inner", "mp_tri", "mp_slope", "mp_slope_inner", "mp_ends", "mp_walls",
                  "mp_direct", "mp_twin_direct", "mp_twin_matched", "M", "phi", "phi_odd", "phi_inner",
                  "camera_estimate", "twin_unmatched")
     n_levels = 1          # flux accumulators per measurement point (one per Markov-chain level)
@@ -149,7 +153,12 @@ class Sppm(Method):
         self.balanced_radius = opts["radius_rule"] == "balanced"
         if opts["disc"] not in self.DISCS:
             raise SettingsError(f"--disc must be one of {', '.join(self.DISCS)}, got '{opts['disc']}'")
+        # probed: the MPs' discs are probed with rays (kernels/disc_clip.py); clipped: each
+        # estimate divides by its disc's share on the surface; sealed: the whole disc, without
+        # the photons behind a wall
+        self.probed_disc = opts["disc"] in ("clipped", "linear", "sealed")
         self.clipped_disc = opts["disc"] in ("clipped", "linear")
+        self.sealed_disc = opts["disc"] == "sealed"
         # linear: clipped, each photon weighted so that a density linear across the disc is
         # read at its centre (kernels/disc_clip.py, _linear_fit)
         self.linear_disc = opts["disc"] == "linear"
@@ -207,13 +216,15 @@ class Sppm(Method):
             self.mp_slope = f.vector(3, ti.f32, n)       # a photon at x counts 1 + slope . (x - p)
             self.mp_slope_inner = f.vector(3, ti.f32, n)     # in the disc of half the area
             self.mp_ends = f.vector(2, ti.u32, n)        # the region a photon must lie in (disc_clip.in_region)
+        if self.sealed_disc:
+            self.mp_walls = f.vector(4, ti.u32, n)       # the walls in the disc (disc_clip.behind_wall)
         self.mp_direct = f.vector(3, ti.f64, n)        # the camera path's emission and direct light
         self.mp_twin_direct = f.vector(3, ti.f64, n)   # its twin's (at the same pixel position)
         self.mp_twin_matched = f.scalar(ti.i32, n)     # 1 where the twin reached the same MP
         # Per-pixel progressive statistics, float64.
         n = self.n_pixels
         self.R = f.scalar(ti.f64, n)
-        if self.clipped_disc:
+        if self.probed_disc:
             # per pixel, the passes left in which its MPs are probed (EDGE_MEMORY after one was
             # found cut by an edge; the others' every PROBE_ALL_EVERY passes, _clip_discs)
             self.edge_pixel = f.scalar(ti.i32, n)
@@ -291,7 +302,7 @@ class Sppm(Method):
     def _reset(self):
         fill_fields((f, 0) for f in (self.R, self.N, self.D, self.tau, self.Ld, self.M, self.phi, self.phi_odd,
                                      self.counters, self.mp_valid, self.camera_held, self.camera_stochastic))
-        if self.clipped_disc:
+        if self.probed_disc:
             fill_fields((f, 0) for f in (self.edge_pixel, self.edge_seen))
         if self.uniform_accumulator:
             self.last_counts.fill(0)
@@ -336,7 +347,7 @@ class Sppm(Method):
         self._camera_pass(self.seed_u32, it, self.max_depth, self.initial_radius, self.radius_pixels * self.pixel_angle,
                           k, in_use, *self.pixel_passes.take(k), int(self.twins_now))
         self._init_radii(k)
-        if self.clipped_disc:
+        if self.probed_disc:
             self._clip_discs(in_use, int(it % PROBE_ALL_EVERY == 0))
         self.grid.build(self.mp_p, self.mp_radius, self.mp_valid, in_use)
         self.camera_paths_last = k
@@ -473,17 +484,22 @@ class Sppm(Method):
         MP's own flat triangle and the triangles near answer them: disc_clip._probe_setup),
         so a pixel whose MPs were found clear for EDGE_MEMORY passes (its radius has shrunk off
         the edge) is probed with the others again. (Probing clear pixels ever more rarely was
-        measured and dropped: docs/guiding.md, "What the probes cost".)"""
+        measured and dropped: docs/guiding.md, "What the probes cost".) --disc sealed probes
+        for walls alone (disc_walls, up to 8 rays) and keeps the whole disc."""
         n = self.n_pixels
         for j in range(in_use):
-            self.mp_share[j] = 1.0
-            self.mp_share_inner[j] = 1.0
             i = j % n
+            if ti.static(self.clipped_disc):
+                self.mp_share[j] = 1.0
+                self.mp_share_inner[j] = 1.0
             if ti.static(self.linear_disc):
                 self.mp_slope[j] = ti.Vector([0.0, 0.0, 0.0])
                 self.mp_slope_inner[j] = ti.Vector([0.0, 0.0, 0.0])
                 self.mp_ends[j] = ti.Vector([ti.u32(WHOLE_DISC), ti.u32(WHOLE_DISC)])
+            if ti.static(self.sealed_disc):
+                self.mp_walls[j] = ti.Vector([ti.u32(NO_WALLS)] * 4)
             if self.mp_valid[j] and (probe_all or self.edge_pixel[i]):
+                cut = 0
                 if ti.static(self.linear_disc):
                     full, slope, inner, slope_inner, ends = disc_linear_fits(self.dscene, self.mp_p[j],
                                                                              self.mp_n[j], self.mp_radius[j],
@@ -493,12 +509,18 @@ class Sppm(Method):
                     self.mp_slope[j] = slope
                     self.mp_slope_inner[j] = slope_inner
                     self.mp_ends[j] = ends
-                else:
+                    cut = full < 0.999
+                elif ti.static(self.clipped_disc):
                     full, inner = disc_shares(self.dscene, self.mp_p[j], self.mp_n[j], self.mp_radius[j],
                                               self.mp_tri[j], True)
                     self.mp_share[j] = full
                     self.mp_share_inner[j] = inner
-                if self.mp_share[j] < 0.999:
+                    cut = full < 0.999
+                else:
+                    walls = disc_walls(self.dscene, self.mp_p[j], self.mp_n[j], self.mp_radius[j])
+                    self.mp_walls[j] = walls
+                    cut = (walls != ti.u32(NO_WALLS)).any()
+                if cut:
                     self.edge_seen[i] = 1
         for i in range(n):          # after every decision of this pass: deterministic
             if self.edge_seen[i]:
@@ -573,6 +595,9 @@ class Sppm(Method):
                         if ends[0] != ti.u32(WHOLE_DISC) or ends[1] != ti.u32(WHOLE_DISC):
                             t1, t2 = onb(nj)
                             ok = in_region(ends, offset.dot(t1) / r, offset.dot(t2) / r)
+                    if ti.static(self.sealed_disc):
+                        t1, t2 = onb(nj)
+                        ok = not behind_wall(self.mp_walls[j], offset.dot(t1) / r, offset.dot(t2) / r)
         return ok
 
     @ti.func
