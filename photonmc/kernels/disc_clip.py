@@ -478,10 +478,58 @@ def disc_walls(sc: ti.template(), p, n, R):
 
 
 @ti.func
+def _wall_line(packed, k):
+    """(unit normal of the wall direction k's probe met, its distance from p in units of R; 2,
+    beyond the rim, where it met none), in the tangent plane."""
+    step = ti.static(2.0 * math.pi / DIRECTIONS)
+    half = (packed[k // 2] >> ti.u32(16 * (k % 2))) & ti.u32(0xFFFF)
+    level = half & ti.u32(0xFF)
+    m = ti.Vector([1.0, 0.0])
+    d = 2.0
+    if level != ti.u32(WALL_LEVELS):
+        rho = ti.cast(level, ti.f32) / WALL_LEVELS
+        turn = (ti.cast(half >> ti.u32(8), ti.f32) / WALL_LEVELS - 0.5) * math.pi
+        normal_angle = (k + 0.5) * step + turn
+        m = ti.Vector([ti.cos(normal_angle), ti.sin(normal_angle)])
+        d = rho * ti.cos(turn)
+    return m, d
+
+
+@ti.func
+def wall_shares(packed):
+    """(share of the disc in front of its walls, the same for the disc of half the area): each
+    direction's wedge cut by the wall lines of its own and its two neighbouring directions (as
+    behind_wall cuts it), integrated over QUADRATURE thin sectors. The estimate divides by pi R^2 x share, so that the part of the
+    disc behind a wall (which the gather no longer counts) is not counted as dark either."""
+    cap = ti.static(1.0 / math.sqrt(2.0))
+    fine = ti.static(QUADRATURE // DIRECTIONS)
+    step = ti.static(2.0 * math.pi / DIRECTIONS)
+    full = 0.0
+    inner = 0.0
+    for k in range(DIRECTIONS):
+        for f in ti.static(range(fine)):
+            phi = k * step + (f + 0.5) * ti.static(step / fine)
+            u = ti.Vector([ti.cos(phi), ti.sin(phi)])
+            reach = 1.0
+            for side in ti.static((-1, 0, 1)):
+                m, d = _wall_line(packed, (k + side + DIRECTIONS) % DIRECTIONS)
+                c = m.dot(u)
+                if c > 1e-6:
+                    reach = ti.min(reach, ti.max(d, 0.0) / c)
+            full += reach * reach
+            r_inner = ti.min(reach, cap)
+            inner += r_inner * r_inner
+    return (ti.max(full / QUADRATURE, SHARE_MIN), ti.max(inner / (QUADRATURE * cap * cap), SHARE_MIN))
+
+
+@ti.func
 def behind_wall(packed, offset_u, offset_v) -> ti.i32:
-    """Whether a photon at tangent-plane offset (u, v) from p (units of R) lies behind the wall
-    its direction's probe met (disc_walls): beyond the line through that hit, square to the
-    wall's normal."""
+    """Whether a photon at tangent-plane offset (u, v) from p (units of R) lies behind a wall
+    the probes met (disc_walls): beyond the line through the hit, square to the wall's normal,
+    of the direction nearest the photon or of either beside it. A wall met obliquely is missed
+    by a direction that still has part of its wedge behind it (a wall at R / 2 by the
+    directions 67.5 degrees from its normal), and the neighbours' lines cover that part; in a
+    corner each wall's line cuts its own side."""
     behind = 0
     if packed[0] != ti.u32(NO_WALLS) or packed[1] != ti.u32(NO_WALLS) or \
             packed[2] != ti.u32(NO_WALLS) or packed[3] != ti.u32(NO_WALLS):
@@ -489,14 +537,10 @@ def behind_wall(packed, offset_u, offset_v) -> ti.i32:
         angle = ti.atan2(offset_v, offset_u)
         k = ti.cast(ti.floor(angle / step), ti.i32)          # the nearest direction, (k + 0.5) step
         k = (k % DIRECTIONS + DIRECTIONS) % DIRECTIONS
-        half = (packed[k // 2] >> ti.u32(16 * (k % 2))) & ti.u32(0xFFFF)
-        level = half & ti.u32(0xFF)
-        if level != ti.u32(WALL_LEVELS):
-            rho = ti.cast(level, ti.f32) / WALL_LEVELS
-            turn = (ti.cast(half >> ti.u32(8), ti.f32) / WALL_LEVELS - 0.5) * math.pi
-            normal_angle = (k + 0.5) * step + turn
-            m = ti.Vector([ti.cos(normal_angle), ti.sin(normal_angle)])
-            behind = offset_u * m.x + offset_v * m.y > rho * ti.cos(turn)
+        for side in ti.static((-1, 0, 1)):
+            m, d = _wall_line(packed, (k + side + DIRECTIONS) % DIRECTIONS)
+            if offset_u * m.x + offset_v * m.y > d:
+                behind = 1
     return behind
 
 

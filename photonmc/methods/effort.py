@@ -338,7 +338,7 @@ class EffortBalance:
         if base is None or not self.sum_camera_photons > 0.0:
             return None
         v_c, v_p, rays, photon_work = base
-        if not v_p > 0.0:
+        if not v_p > 0.0 or self._split_photon_side(base, float(steps_now))[1] <= 0.0:
             return None      # no photon variance yet (no MP has met a photon): the errors are in its units
         # A negative V_c (the pairs' difference, noisy while the photon side dominates them) is
         # no camera-side error measured: scored as such, not as a negative one, which made every

@@ -38,7 +38,7 @@ from ..kernels.camera_walk import STOP, THROUGHPUT_ROULETTE, camera_walk
 from ..kernels.device_scene import UNBOUNDED_DEPTH
 from ..kernels.direct import next_event
 from ..kernels.disc_clip import (NO_WALLS, WHOLE_DISC, behind_wall, disc_linear_fits, disc_shares, disc_walls,
-                                 in_region)
+                                 in_region, wall_shares)
 from ..kernels.batch import fill_fields
 from ..kernels.fields import FieldGroup
 from ..kernels.hashgrid import HashGrid
@@ -93,9 +93,10 @@ class Sppm(Method):
                # overhang an edge (docs/guiding.md, "Discs that overhang an edge"); linear: the
                # region the probes bound, its photons alone, weighted so that light linear
                # across it is read at the MP (docs/guiding.md, "Discs fitted to their surface");
-               # sealed: the whole disc's area, without the photons behind a wall the probes
-               # find in it, so light leaking through a wall onto the same plane does not count
-               # (docs/guiding.md, "Light that leaks through a partition").
+               # sealed: without the photons behind a wall the probes find in the disc, so light
+               # leaking through a wall onto the same plane does not count, and divided by the
+               # part of the disc in front of the walls (docs/guiding.md, "Light that leaks
+               # through a partition").
                "disc": "full"}
     RADIUS_RULES = ("progressive", "balanced")
     DISCS = ("full", "clipped", "linear", "sealed")
@@ -154,11 +155,12 @@ class Sppm(Method):
         if opts["disc"] not in self.DISCS:
             raise SettingsError(f"--disc must be one of {', '.join(self.DISCS)}, got '{opts['disc']}'")
         # probed: the MPs' discs are probed with rays (kernels/disc_clip.py); clipped: each
-        # estimate divides by its disc's share on the surface; sealed: the whole disc, without
-        # the photons behind a wall
+        # estimate divides by its disc's share on the surface; sealed: by its share in front
+        # of the walls in it, without the photons behind them
         self.probed_disc = opts["disc"] in ("clipped", "linear", "sealed")
         self.clipped_disc = opts["disc"] in ("clipped", "linear")
         self.sealed_disc = opts["disc"] == "sealed"
+        self.divided_disc = self.clipped_disc or self.sealed_disc     # divides by a share of the disc
         # linear: clipped, each photon weighted so that a density linear across the disc is
         # read at its centre (kernels/disc_clip.py, _linear_fit)
         self.linear_disc = opts["disc"] == "linear"
@@ -208,9 +210,10 @@ class Sppm(Method):
         self.mp_depth = f.scalar(ti.i32, n)
         self.mp_valid = f.scalar(ti.i32, n)
         self.mp_radius = f.scalar(ti.f32, n)
-        if self.clipped_disc:
+        if self.divided_disc:
             self.mp_share = f.scalar(ti.f32, n)          # the part of the disc on the MP's surface
             self.mp_share_inner = f.scalar(ti.f32, n)    # and of the disc of half the area
+        if self.clipped_disc:
             self.mp_tri = f.scalar(ti.i32, n)            # the MP's triangle (-1: a sphere), which spares probe rays
         if self.linear_disc:
             self.mp_slope = f.vector(3, ti.f32, n)       # a photon at x counts 1 + slope . (x - p)
@@ -485,11 +488,11 @@ class Sppm(Method):
         so a pixel whose MPs were found clear for EDGE_MEMORY passes (its radius has shrunk off
         the edge) is probed with the others again. (Probing clear pixels ever more rarely was
         measured and dropped: docs/guiding.md, "What the probes cost".) --disc sealed probes
-        for walls alone (disc_walls, up to 8 rays) and keeps the whole disc."""
+        for walls alone (disc_walls, up to 8 rays), and its share is the disc's in front of them."""
         n = self.n_pixels
         for j in range(in_use):
             i = j % n
-            if ti.static(self.clipped_disc):
+            if ti.static(self.divided_disc):
                 self.mp_share[j] = 1.0
                 self.mp_share_inner[j] = 1.0
             if ti.static(self.linear_disc):
@@ -520,6 +523,10 @@ class Sppm(Method):
                     walls = disc_walls(self.dscene, self.mp_p[j], self.mp_n[j], self.mp_radius[j])
                     self.mp_walls[j] = walls
                     cut = (walls != ti.u32(NO_WALLS)).any()
+                    if cut:
+                        full, inner = wall_shares(walls)
+                        self.mp_share[j] = full
+                        self.mp_share_inner[j] = inner
                 if cut:
                     self.edge_seen[i] = 1
         for i in range(n):          # after every decision of this pass: deterministic
@@ -692,7 +699,7 @@ class Sppm(Method):
                         phi_odd += ti.cast(self.phi_odd[level, j], ti.f64) * self.level_scale[level]
                     w = ti.cast(self.mp_W[j], ti.f64)
                     w_inner = w
-                    if ti.static(self.clipped_disc):
+                    if ti.static(self.divided_disc):
                         # the disc's area is pi R^2 x its share on the surface, for every use below
                         w = w / ti.cast(self.mp_share[j], ti.f64)
                         w_inner = w_inner / ti.cast(self.mp_share_inner[j], ti.f64)
