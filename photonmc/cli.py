@@ -124,8 +124,9 @@ def _add_render_options(r, default_out: str, budget_help: str = ""):
                     help="sppm, visibility, spatial-tf: full divides a point's photons by its whole disc; clipped "
                          "by the part of the disc on its surface, found with rays (no dark edges; docs/guiding.md, "
                          "\"Discs that overhang an edge\"); linear: clipped, its photons weighted so that a "
-                         "density linear across the disc is read at its centre; sealed: the whole disc, counting only "
-                         "the photons on the point's side of a wall (no light leaking through thin walls)")
+                         "density linear across the disc is read at its centre; sealed: only the photons on the point's "
+                         "side of the walls in its disc (no light leaking through a thin wall), divided by that "
+                         "part of the disc (docs/guiding.md, \"Light that leaks through a partition\")")
     _add_guiding_options(r)
     _add_vcm_options(r)
     d = r.add_argument_group("several processes or machines (needs photonmc[distributed], i.e. Ray)")
