@@ -35,6 +35,12 @@ through the probed ends, the disc cut by them. Its photons are weighted so that 
 linear across the region is read at the point (_linear_fit), and the gather counts only the
 photons inside it (in_region), so light that leaks across a thin wall onto the same plane does
 not count either.
+
+`--disc sealed` (disc_walls, behind_wall, wall_shares) runs the wall probes alone: each wall a
+probe meets, rising from the surface, is kept as a line (its hit and its normal); the gather
+drops the photons behind those lines (light leaking through a partition onto the same floor)
+and the estimate divides by the part of the disc in front of them. Open edges cut nothing
+(where clipped discs read the bright side of a thin face lit from one side).
 """
 import math
 
@@ -499,8 +505,9 @@ def _wall_line(packed, k):
 def wall_shares(packed):
     """(share of the disc in front of its walls, the same for the disc of half the area): each
     direction's wedge cut by the wall lines of its own and its two neighbouring directions (as
-    behind_wall cuts it), integrated over QUADRATURE thin sectors. The estimate divides by pi R^2 x share, so that the part of the
-    disc behind a wall (which the gather no longer counts) is not counted as dark either."""
+    behind_wall cuts it), integrated over QUADRATURE thin sectors. The estimate divides by
+    pi R^2 x share, so that the part of the disc behind a wall (which the gather no longer
+    counts) is not counted as dark either."""
     cap = ti.static(1.0 / math.sqrt(2.0))
     fine = ti.static(QUADRATURE // DIRECTIONS)
     step = ti.static(2.0 * math.pi / DIRECTIONS)
