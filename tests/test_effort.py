@@ -591,3 +591,45 @@ def test_guided_pass_length_follows_the_camera_side_and_its_deposits():
     longer = np.geomspace(100000, 200000, 12).astype(np.int64)
     share = 1.0 - (1.0 - np.exp(-longer / 20000.0)) / (longer / 20000.0)     # guided.recorded_share
     assert free.chain_pass_length(longer, share, share[-1], n, 8, 64) == longer[-1]
+
+
+def test_camera_variance_weighs_each_pair_by_its_photon_noise():
+    """A pair of short passes, where the photon noise dwarfs the camera side, says next to
+    nothing about V_c: the estimate weighs each pair by the inverse square of its expected
+    spread (docs/guiding.md, "A first pair that hid the camera side"). On an exact model with
+    chi-square noise, passes of 4,096 and 8,192 photons then about 10^6 (a scarce room's guided
+    passes): the weighted V_c is near the true one in every render and unbiased over renders,
+    where the plain mean of the same pairs is ruled by the first one (negative in most renders)."""
+    v_c, v_p, rng = 1e-5, 5.0, np.random.default_rng(7)
+    weighted, plain = [], []
+    for _ in range(200):
+        balance, last = EffortBalance(1000, 4096, 2.0 / 3.0), None
+        pairs = []
+        for n in [4096, 8192] + [int(x) for x in rng.uniform(3e5, 2e6, 10)]:
+            expected = 2 * v_c + v_p * (1 / n + 1 / (last or n))
+            spread = expected * rng.chisquare(1)       # one pixel's squared difference: chi-square
+            pair = balance.observe(n, spread, v_p, 1.0, 3000.0, 8.0 * n)
+            if pair is not None:
+                pairs.append(pair)
+            last = n
+        weighted.append(balance.shares()[0])
+        plain.append(np.mean(pairs))
+    weighted, plain = np.array(weighted), np.array(plain)
+    assert abs(weighted.mean() / v_c - 1) < 0.15, weighted.mean()
+    assert np.mean(weighted > 0) > 0.9
+    assert np.mean(plain < 0) > 0.4                  # what the plain mean made of the same pairs
+    assert weighted.std() < 0.1 * plain.std()
+
+
+def test_camera_variance_weights_leave_camera_paths_out():
+    """Pairs of equal photon counts weigh alike whatever their K: V_c per camera path falls as
+    K grows (a pixel's K points are a net), and weights with K in them would count the many-K
+    pairs less and so raise V_c (docs/guiding.md, "A first pair that hid the camera side")."""
+    balance, rng, pairs = EffortBalance(1000, 4096, 2.0 / 3.0), np.random.default_rng(3), []
+    for i in range(40):
+        k = 1 + i % 8
+        pair = balance.observe(4096, rng.uniform(1e-5, 1e-4), 0.02, 1.0, 3000.0 * k, 8.0 * 4096, camera_paths=k)
+        if pair is not None:
+            pairs.append(pair)
+    kept = sorted(pairs)[:len(pairs) - len(pairs) // 32]
+    assert balance.shares()[0] == pytest.approx(np.mean(kept), rel=1e-9)

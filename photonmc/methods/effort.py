@@ -73,6 +73,7 @@ class EffortBalance:
         self.pair_sum = 0.0                  # held_camera: the pairs' V_c estimates, summed
         self.pair_samples = 0
         self.pair_variances = []             # held_camera: the pairs' last HISTORY estimates
+        self.pair_scales = []                # and each one's photon-side scale (_pair_scale)
         # held_camera: read V_c from the pairs after all, as a pairs balance does (the guided
         # methods' --camera-variance auto sets it pass by pass: methods/guided.py).
         self.use_pairs = False
@@ -80,6 +81,7 @@ class EffortBalance:
         self.photons = int(initial)
         self.alpha = float(alpha)
         self.camera_variances = []           # per-iteration V_c estimates
+        self.camera_scales = []              # and each one's photon-side scale (_pair_scale)
         self.photon_variances_r2 = []        # per-iteration V_p x mean R^2 (V_p grows as 1/R^2)
         self.photon_variances_mp_r2 = []     # the same for each measurement point alone
         self.correlation_terms = []          # passes of K >= 2: (K V_p - V_p,MP, (K - 1) V_p,MP)
@@ -152,12 +154,14 @@ class EffortBalance:
         v_p = half_difference
         v_c = (spread - v_p * (1.0 / photons + 1.0 / last) - shared_variance - last_shared) \
             / (1.0 / camera_paths + 1.0 / last_k)
+        scale = self._pair_scale(photons, last, camera_paths, last_k, radius_sq)
         if self.held_camera:
             if keep:
                 self.pair_sum += v_c
                 self.pair_samples += 1
                 self.pair_variances.append(v_c)
-                del self.pair_variances[:-HISTORY]
+                self.pair_scales.append(scale)
+                del self.pair_variances[:-HISTORY], self.pair_scales[:-HISTORY]
             v_c = camera_held
         if keep:
             self.photon_variances_r2.append(v_p * radius_sq)
@@ -170,9 +174,10 @@ class EffortBalance:
                 del self.photon_variances_mp_r2[:-HISTORY]
             if v_c is not None:
                 self.camera_variances.append(v_c)
+                self.camera_scales.append(scale)
                 self.camera_sum += v_c
                 self.samples += 1
-        del self.camera_variances[:-HISTORY], self.photon_variances_r2[:-HISTORY]
+        del self.camera_variances[:-HISTORY], self.camera_scales[:-HISTORY], self.photon_variances_r2[:-HISTORY]
         self.radius_sq = radius_sq
         return v_c
 
@@ -191,16 +196,53 @@ class EffortBalance:
         # mean over the whole render keeps an event once it is seen instead of forgetting it
         # after HISTORY iterations.
         pairs = bool(self.held_camera and self.use_pairs and self.pair_variances)
+        v_p_r2 = math.fsum(self.photon_variances_r2) / len(self.photon_variances_r2)
         if pairs or self.trim_camera:
-            camera = sorted(self.pair_variances if pairs else self.camera_variances)   # cheaper than NumPy's
-            keep = len(camera) - len(camera) // TRIM
-            v_c = math.fsum(camera[:keep]) / keep
+            if pairs:
+                v_c = self._weighted_pairs(self.pair_variances, self.pair_scales, v_p_r2)
+            else:
+                v_c = self._weighted_pairs(self.camera_variances, self.camera_scales, v_p_r2)
         else:
             v_c = self.camera_sum / self.samples
         if self.held_camera and self.pair_samples and not pairs:
             v_c += self._position_share(v_c)
-        return (v_c,
-                math.fsum(self.photon_variances_r2) / len(self.photon_variances_r2) / self.radius_sq)
+        return v_c, v_p_r2 / self.radius_sq
+
+    @staticmethod
+    def _pair_scale(photons: int, last: int, camera_paths: int, last_k: int, radius_sq: float):
+        """What sizes a pair's photon noise: (1/n_i + 1/n_j) / 2, and the pass's mean R^2 (V_p
+        goes as 1 / R^2). K is left out (_weighted_pairs)."""
+        return (0.5 * (1.0 / photons + 1.0 / last), radius_sq)
+
+    def _weighted_pairs(self, estimates, scales, v_p_r2: float) -> float:
+        """V_c from the pairs' estimates, without the largest 1/TRIM (one camera path that finds
+        the lamp through glass makes one iteration's spread ~100x the others', bundled caustic),
+        each weighted by 1 / (V_c + P_i)^2, P_i = (V_p / R_i^2 + V_s) (1/n_i + 1/n_j) / 2 the
+        photon noise the pair's estimate had to remove. A pair's estimate is its squared
+        difference less that noise, so its spread goes as V_c + P_i (at one camera path per
+        pixel): a pair of short passes, where the photon noise dwarfs the camera side, says
+        next to nothing about it. A plain mean let the first pair of a scarce room (4,096 and
+        8,192 photons: -0.0028 against later pairs' 2e-7 to 1e-5) hold V_c below zero for the
+        whole render, and the guided passes then stayed at their longest (docs/guiding.md, "A
+        first pair that hid the camera side"). The weights leave out K, which divides V_c but
+        not V_p in a pair's spread: V_c per camera path falls as K grows (a pixel's K points
+        are a net), and weights with K in them counted the many-K pairs less, raised V_c
+        10-15 % in the closet and lost 8 % there. P_i comes from the history's mean V_p and
+        V_s, not the pair's own half-difference, so that a weight does not correlate with its
+        estimate."""
+        order = sorted(range(len(estimates)), key=estimates.__getitem__)
+        order = order[:len(order) - len(order) // TRIM]
+        v_s = math.fsum(self.shared_variances) / len(self.shared_variances) if self.shared_variances else 0.0
+        noise = [(v_p_r2 / scales[i][1] + v_s) * scales[i][0] for i in order]
+        values = [estimates[i] for i in order]
+        v_c = math.fsum(values) / len(values)
+        for _ in range(2):      # the weights depend on V_c: two fixed-point rounds from the plain mean
+            spreads = [max(v_c, 0.0) + p for p in noise]
+            if not min(spreads) > 0.0:
+                break           # no photon noise and no V_c: the plain mean
+            weights = [1.0 / x ** 2 for x in spreads]
+            v_c = math.fsum(w * v for w, v in zip(weights, values)) / math.fsum(weights)
+        return v_c
 
     def photon_correlation(self) -> float | None:
         """rho, the mean correlation of the photon noise of two measurement points of one pixel
