@@ -36,7 +36,8 @@ FORMAT = "photonmc-render-state"
 # 6: the guided methods' pass-length state (visible counts, recorded shares) and the effort
 #    balance's shared photon variance (stop 65)
 # 7: the pass-length state moved into methods/pass_length.py's BalancedPassLength, which mbe keeps too
-FORMAT_VERSION = 7
+# 8: the effort balance keeps each pair's photon-noise scale beside its V_c estimate (stop 69)
+FORMAT_VERSION = 8
 SCALARS = (bool, int, float, str, type(None))
 SKIPPED = ("dscene", "settings", "options")       # given by the job, not computed
 SPARSE_MIN_BYTES = 1 << 20
