@@ -154,7 +154,7 @@ class EffortBalance:
         v_p = half_difference
         v_c = (spread - v_p * (1.0 / photons + 1.0 / last) - shared_variance - last_shared) \
             / (1.0 / camera_paths + 1.0 / last_k)
-        scale = self._pair_scale(photons, last, camera_paths, last_k, radius_sq)
+        scale = self._pair_scale(photons, last, radius_sq)
         if self.held_camera:
             if keep:
                 self.pair_sum += v_c
@@ -185,9 +185,8 @@ class EffortBalance:
         """(V_c, V_p at the current radii), or None before there is an estimate."""
         if self.samples == 0:
             return None
-        # V_c: the mean of the history without its largest 1/32. One camera path that finds
-        # the lamp through glass makes one iteration's spread ~100x the others' (bundled
-        # caustic), and a plain mean would let that one event steer the rest of the render.
+        # V_c: the history's mean without its largest 1/32, each pair weighted by its photon
+        # noise (_weighted_pairs).
         # V_p: a plain mean, since where photons are scarce most passes see none and the
         # signal is in the rare passes that do (a median or trimmed mean would be 0 there).
         # Without the trim (mbe), the plain mean since the start: such events are the error
@@ -209,7 +208,7 @@ class EffortBalance:
         return v_c, v_p_r2 / self.radius_sq
 
     @staticmethod
-    def _pair_scale(photons: int, last: int, camera_paths: int, last_k: int, radius_sq: float):
+    def _pair_scale(photons: int, last: int, radius_sq: float):
         """What sizes a pair's photon noise: (1/n_i + 1/n_j) / 2, and the pass's mean R^2 (V_p
         goes as 1 / R^2). K is left out (_weighted_pairs)."""
         return (0.5 * (1.0 / photons + 1.0 / last), radius_sq)
