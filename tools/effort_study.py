@@ -96,6 +96,9 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "pantry-vent": ("../tools/heldout/pantry-vent.xml", "../../tools/heldout/pantry-vent-64.exr", {"res": "64"}),
           # Made after stop 68's sealed discs were built and measured.
           "slit-annex": ("../tools/heldout/slit-annex.xml", "../../tools/heldout/slit-annex-64.exr", {"res": "64"}),
+          # Held out from the effort balance's weighted camera variance (stop 69).
+          "clerestory-annex": ("../tools/heldout/clerestory-annex.xml", "../../tools/heldout/clerestory-annex-64.exr",
+                               {"res": "64"}),
           # Rooms of mbe's suite (tools/mbe_suite.sh), for A/B runs of vcm's and mbe's options.
           "slit-cabinet": ("../tools/heldout/slit-cabinet.xml", "../../tools/heldout/slit-cabinet-64.exr",
                            {"res": "64"}),
