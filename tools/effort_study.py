@@ -105,11 +105,18 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           "glass-table": ("../tools/heldout/glass-table.xml", "../../tools/heldout/glass-table-64.exr", {"res": "64"})}
 
 
+# Other trees' packages by name (tools/ab_study.py --a-tree loads one as `photonmc_base`): an
+# option "_tree" set to such a name renders with that package's Job instead of this tree's.
+OTHER_TREES = {}
+
+
 def room_job(scene: str, params: dict, method: str, options: dict, seed: int) -> Job:
     """The render of one of SCENES' scenes (its first field: a bundled scene's folder, or an
     XML path relative to scenes/)."""
     path = REPO / "scenes" / scene
-    return Job(scene=str(path.resolve() if path.suffix == ".xml" else path / "scene.xml"), params=params,
+    options = dict(options)
+    job = OTHER_TREES[options.pop("_tree")] if "_tree" in options else Job
+    return job(scene=str(path.resolve() if path.suffix == ".xml" else path / "scene.xml"), params=params,
                method=method, options=options, seed=seed)
 
 
