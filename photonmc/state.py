@@ -37,7 +37,8 @@ FORMAT = "photonmc-render-state"
 #    balance's shared photon variance (stop 65)
 # 7: the pass-length state moved into methods/pass_length.py's BalancedPassLength, which mbe keeps too
 # 8: the effort balance keeps each pair's photon-noise scale beside its V_c estimate (stop 69)
-FORMAT_VERSION = 8
+# 9: mbe's pass choice keeps whether its measured ratio is settled (fewer twins, stop 70)
+FORMAT_VERSION = 9
 SCALARS = (bool, int, float, str, type(None))
 SKIPPED = ("dscene", "settings", "options")       # given by the job, not computed
 SPARSE_MIN_BYTES = 1 << 20

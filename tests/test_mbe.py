@@ -650,6 +650,50 @@ def test_twin_vcm_passes_hold_the_pixel_positions(write_scene):
     assert independent["twin_passes"] == 0 and independent["vcm_pass_variance_twins"] is None
 
 
+def test_a_settled_choice_twins_its_vcm_passes_less_often():
+    """Once a trusted measured ratio lies SETTLED_Z standard errors of its logarithm from 1
+    (the chain side's error PREDICTION_LOG_ERROR where it is predicted), the pass choice is
+    settled and a film vcm pass gets a twin one in TwinVariance.SETTLED_EVERY instead of one in
+    EVERY; nearer 1 or untrusted it is not (docs/mbe.md, "Fewer twins once the choice is
+    settled")."""
+    import math
+    from photonmc.methods.light_balance import MEASURED_AFTER
+    from photonmc.methods.pass_choice import PREDICTION_LOG_ERROR, SETTLED_Z, PassChoice, TwinVariance
+
+    def twins(settled):
+        tw = TwinVariance()
+        for _ in range(MEASURED_AFTER):
+            assert tw.due(exploring=True)
+            tw.observe(1.0, 1)
+        return sum(tw.due(exploring=False, settled=settled) for _ in range(4 * TwinVariance.SETTLED_EVERY))
+
+    assert twins(False) == 4 * TwinVariance.SETTLED_EVERY // TwinVariance.EVERY and twins(True) == 4
+    n_light, steps, r2 = 4096, 4096, 0.01
+    effort = _KnownEffort(0.01, 0.001, camera_work=20.0 * n_light)
+    c = PassChoice(n_light, True, n_pixels=n_light, measured=True)
+    for _ in range(8):
+        c.observe_chain_pass(steps, 2, traced=steps, light_work=3.0 * steps, merges=steps,
+                             uniform_variance=2.0, radius_sq=r2, connections=1.0 * steps)
+    n, chain_variance, error = n_light // 2, 0.004, 0.1
+
+    def settled(target, errors, chain=chain_variance):
+        vcm_variance = chain_variance * c.work(effort, 2, steps)[0] / (target * c.work(effort, 1, steps, n, True)[1])
+        c.next_is_vcm(effort, 2, 8, steps, r2, n, vcm_variance, chain, errors)
+        return c.settled
+
+    far = math.exp(1.1 * SETTLED_Z * error * math.sqrt(2.0))
+    near = math.exp(0.9 * SETTLED_Z * error * math.sqrt(2.0))
+    assert settled(far, (error, error)) and settled(1.0 / far, (error, error))
+    assert c.stats()["settled"]
+    assert not settled(near, (error, error)) and c.vcm_measured        # trusted, not settled
+    assert not settled(far, (10.0, 10.0))                              # untrusted
+    for target in (far, 1e3):                                          # the chain side predicted
+        settled(target, (error, None), chain=None)
+        assert c.vcm_measured and not c.chain_measured
+        assert c.settled == (abs(math.log(c.measured_ratio)) > SETTLED_Z * math.hypot(error, PREDICTION_LOG_ERROR))
+    assert c.settled            # the last: a vcm pass 1,000 times better by the measured side
+
+
 def test_warm_up_compiles_the_vcm_pass_and_reset_forgets_it():
     """warm_up() (what converge runs before it resets and starts its clock) makes a vcm pass
     too, so that its kernels do not compile mid-measurement (0.6-1.5 s at 64x64 with a cold

@@ -509,7 +509,7 @@ class Mbe(Vcm):
             it, self.camera_paths_traced, n_light, keep, points, pixel_samples.VCM_PASS_STREAM)
         work = LightPathBalance.work(self.n_pixels, vertices, connections, segments, v.vertices_last, merges)
         self.light_balance.observe(n_light, spread, self.n_pixels, work)
-        if self.twins is not None and self.twins.due(exploring=not keep):
+        if self.twins is not None and self.twins.due(exploring=not keep, settled=self.pass_choice.settled):
             # The same pixel positions, radius and light subpath count, other random numbers
             # (an index no pass uses), out of the film. The next pass's pair estimate for the
             # light-path balance is then read against the twin, whose positions are as

@@ -124,6 +124,14 @@ MEASURED_Z = 1.0
 # The prediction's error, as a standard error of log(ratio): its vcm pass variance erred
 # 1.3-2x where the kinds mix, and its cost model up to 1.3-1.6x (docs/mbe.md, stops 38 and 40).
 PREDICTION_LOG_ERROR = math.log(2.0)
+# A trusted measured ratio at least SETTLED_Z standard errors of its logarithm from 1 is
+# settled: vcm passes then get a twin in TwinVariance.SETTLED_EVERY instead of one in EVERY
+# (the twins only follow the variance as the radius shrinks, and where the kinds are that far
+# apart that cannot turn the choice: in the bundled scenes, where the measured ratio reads
+# 3.5-14, one twin in 32 took about 3.5 % of mbe's time, docs/mbe.md). Where the chain side is
+# predicted (batch means need 64 chain passes, which those scenes never make), its error is
+# PREDICTION_LOG_ERROR's.
+SETTLED_Z = 2.0
 MEASURE_BAND = 0.7
 MEASURE_PAIRS = 8
 MEASURE_EVERY = 32
@@ -205,17 +213,18 @@ class TwinVariance:
     pass of the film gets one in EVERY, so that the estimate follows the radius as it
     shrinks."""
     EVERY = 32
+    SETTLED_EVERY = 128     # where the pass choice is settled (PassChoice.settled, SETTLED_Z)
 
     def __init__(self):
         self.variance = RunningMean()
         self.film_passes = 0        # vcm passes of the film since the last twin
 
-    def due(self, exploring: bool) -> bool:
+    def due(self, exploring: bool, settled: bool = False) -> bool:
         """Whether the vcm pass just made gets a twin."""
         if exploring or self.variance.count < MEASURED_AFTER:
             return True
         self.film_passes += 1
-        if self.film_passes >= self.EVERY:
+        if self.film_passes >= (self.SETTLED_EVERY if settled else self.EVERY):
             self.film_passes = 0
             return True
         return False
@@ -273,6 +282,7 @@ class PassChoice:
         self.measured_trusted = 0       # and how often it decided alone (MEASURED_Z) or with the prediction
         self.measured_untrusted = 0
         self.combined_ratio = None      # the last untrusted measured ratio combined with the prediction
+        self.settled = False            # the last ratio trusted and SETTLED_Z standard errors from 1
         self.made_from = (0, 0.0, 0.0, 0.0)  # chain passes, K, steps, K x steps when their variance began
 
     def chain_pass_k(self, k: int) -> int:
@@ -395,6 +405,7 @@ class PassChoice:
                vcm_variance: float | None = None, chain_variance: float | None = None,
                k: int = 1, relative_errors: tuple = (None, None)) -> float | None:
         untrusted = None        # an untrusted measured ratio and its log error, to combine with the prediction
+        self.settled = False
         shares = effort.shares()
         if (self.chain_passes < MIN_CHAIN_PASSES or shares is None or self.uniform_passes == 0
                 or self.traced <= 0 or effort.sum_camera_paths <= 0 or not radius_sq > 0):
@@ -447,6 +458,8 @@ class PassChoice:
             if measured is not None and abs(math.log(max(measured, 1e-300))) > MEASURED_Z * log_error:
                 self.vcm_measured, self.chain_measured = True, chain_measured
                 self.measured_trusted += 1
+                chain_log_error = (chain_error or 0.0) if chain_measured else PREDICTION_LOG_ERROR
+                self.settled = abs(math.log(measured)) > SETTLED_Z * math.hypot(vcm_error or 0.0, chain_log_error)
                 return measured
             self.measured_untrusted += 1
             if measured is not None:
@@ -556,6 +569,7 @@ class PassChoice:
                 "measured_k1_passes": self.measured_passes,
                 "measured_chain_over_vcm": self.measured_ratio,
                 "measured_ratio_trusted": self.measured_trusted, "measured_ratio_untrusted": self.measured_untrusted,
+                "settled": self.settled,
                 "untrusted_combined_with_prediction": self.combined_ratio,
                 "camera_variance_k1": self.camera_k1_sum / self.camera_k1_count if self.camera_k1_count else None,
                 "vcm_pass_light_paths_mean": (self.vcm_light_paths_sum / self.vcm_passes if self.vcm_passes else None)}
