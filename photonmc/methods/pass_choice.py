@@ -211,7 +211,7 @@ class TwinVariance:
     of the film already) gets one, and so does every vcm pass until MEASURED_AFTER twins are in
     (where the prediction takes vcm passes at once, there is no exploration); after that a vcm
     pass of the film gets one in EVERY, so that the estimate follows the radius as it
-    shrinks."""
+    shrinks, or one in SETTLED_EVERY while the pass choice is settled (PassChoice.settled)."""
     EVERY = 32
     SETTLED_EVERY = 128     # where the pass choice is settled (PassChoice.settled, SETTLED_Z)
 
