@@ -459,7 +459,8 @@ class PassChoice:
                 self.vcm_measured, self.chain_measured = True, chain_measured
                 self.measured_trusted += 1
                 chain_log_error = (chain_error or 0.0) if chain_measured else PREDICTION_LOG_ERROR
-                self.settled = abs(math.log(max(measured, 1e-300))) > SETTLED_Z * math.hypot(vcm_error or 0.0, chain_log_error)
+                settle_error = SETTLED_Z * math.hypot(vcm_error or 0.0, chain_log_error)
+                self.settled = abs(math.log(max(measured, 1e-300))) > settle_error
                 return measured
             self.measured_untrusted += 1
             if measured is not None:
