@@ -207,6 +207,10 @@ class EffortBalance:
             v_c += self._position_share(v_c)
         return v_c, v_p_r2 / self.radius_sq
 
+    def _shared_variance(self) -> float | None:
+        """V_s x photons: the shared photon variance's mean over the history, None before any."""
+        return math.fsum(self.shared_variances) / len(self.shared_variances) if self.shared_variances else None
+
     @staticmethod
     def _pair_scale(photons: int, last: int, radius_sq: float):
         """What sizes a pair's photon noise: (1/n_i + 1/n_j) / 2, and the pass's mean R^2 (V_p
@@ -231,7 +235,7 @@ class EffortBalance:
         estimate."""
         order = sorted(range(len(estimates)), key=estimates.__getitem__)
         order = order[:len(order) - len(order) // TRIM]
-        v_s = math.fsum(self.shared_variances) / len(self.shared_variances) if self.shared_variances else 0.0
+        v_s = self._shared_variance() or 0.0
         noise = [(v_p_r2 / scales[i][1] + v_s) * scales[i][0] for i in order]
         values = [estimates[i] for i in order]
         v_c = math.fsum(values) / len(values)
@@ -386,7 +390,7 @@ class EffortBalance:
         # candidate's error negative and the longest look best by its sign alone.
         v_c = max(v_c, 0.0)
         deposit_work = DEPOSIT_WORK * self.sum_deposits / self.sum_camera_photons
-        shared = math.fsum(self.shared_variances) / len(self.shared_variances) if self.shared_variances else 0.0
+        shared = self._shared_variance() or 0.0
         camera_work_now = rays + deposit_work * steps_now
         k_now = float(self.last_camera_paths or 1)
         k_low = max(camera_paths / MAX_CHANGE, 1.0)
@@ -435,8 +439,7 @@ class EffortBalance:
                 "bias_ratio": self.bias_ratio,
                 "camera_variance": shares[0] if shares else None,
                 "photon_correlation": self.photon_correlation(),
-                "shared_photon_variance": (math.fsum(self.shared_variances) / len(self.shared_variances)
-                                           if self.shared_variances else None),
+                "shared_photon_variance": self._shared_variance(),
                 "pass_length_gain": self.pass_length_gain,
                 "photon_variance_per_photon": shares[1] if shares else None,
                 "camera_work_per_pass": self.sum_camera_work / self.observed if self.observed else None,
