@@ -99,6 +99,8 @@ SCENES = {"cornell-box": ("cornell-box", "cornell-box-64.exr", {"res": "64"}),
           # Held out from the effort balance's weighted camera variance (stop 69).
           "clerestory-annex": ("../tools/heldout/clerestory-annex.xml", "../../tools/heldout/clerestory-annex-64.exr",
                                {"res": "64"}),
+          # Made after stop 70's fewer-twins rule: an open room where vcm passes win.
+          "open-den": ("../tools/heldout/open-den.xml", "../../tools/heldout/open-den-64.exr", {"res": "64"}),
           # Rooms of mbe's suite (tools/mbe_suite.sh), for A/B runs of vcm's and mbe's options.
           "slit-cabinet": ("../tools/heldout/slit-cabinet.xml", "../../tools/heldout/slit-cabinet-64.exr",
                            {"res": "64"}),
